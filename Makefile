@@ -1,0 +1,51 @@
+# galvo_sysid: the two commands are `make demo` and `make test`; both set everything up.
+# Set-up is incremental: each step re-runs only when its inputs change (stamp files in .venv).
+
+PYTHON ?= python3
+VENV   := .venv
+VPY    := $(VENV)/bin/python
+# Environment for building the interface package against the venv's ROS 2 wheels.
+ROS_BUILD_ENV := PATH=$(CURDIR)/$(VENV)/bin:$$PATH AMENT_PREFIX_PATH=$(CURDIR)/$(VENV) \
+                 CMAKE_PREFIX_PATH=$(CURDIR)/$(VENV)
+MSG_SRC := $(wildcard msg_defs/msg/*.msg) msg_defs/CMakeLists.txt msg_defs/package.xml
+
+.PHONY: setup demo test lint bench clean
+
+setup: $(VENV)/.pkg-stamp
+
+$(VENV)/.deps-stamp: requirements.txt constraints.txt
+	test -x $(VPY) || $(PYTHON) -m venv $(VENV)
+	touch $(VENV)/COLCON_IGNORE
+	$(VPY) -m pip install --quiet --disable-pip-version-check -r requirements.txt -c constraints.txt
+	$(VPY) tools/fix_cmake_paths.py
+	touch $@
+
+$(VENV)/.msgs-stamp: $(VENV)/.deps-stamp $(MSG_SRC)
+	mkdir -p build && touch build/COLCON_IGNORE
+	$(ROS_BUILD_ENV) $(VENV)/bin/colcon --log-base build/log build --base-paths msg_defs \
+	    --merge-install --install-base $(VENV) --build-base build/msgs \
+	    --event-handlers console_cohesion- status- summary+ \
+	    --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE=$(CURDIR)/$(VPY)
+	$(VPY) -c "from galvo_sysid_msgs.msg import ModalParameters, MoveSamples, DriftStatus"
+	touch $@
+
+$(VENV)/.pkg-stamp: $(VENV)/.msgs-stamp setup.py setup.cfg package.xml
+	$(VPY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation --use-pep517 -e .
+	touch $@
+
+demo: setup
+	$(VPY) -m galvo_sysid.demo
+
+test: setup
+	$(VPY) -m pytest -q test
+
+lint: setup
+	$(VENV)/bin/ruff check galvo_sysid test benchmarks tools
+	$(VENV)/bin/mypy galvo_sysid
+
+bench: setup
+	$(VPY) benchmarks/accuracy.py
+	$(VPY) benchmarks/sysid_throughput.py
+
+clean:
+	rm -rf build install log $(VENV)

@@ -1,0 +1,33 @@
+"""ament_python package definition of galvo_sysid (colcon and pip both build it)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'galvo_sysid'
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(include=[PACKAGE, f'{PACKAGE}.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
+        (f'share/{PACKAGE}', ['package.xml']),
+        (f'share/{PACKAGE}/config', glob('config/*.yaml')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='galvo_sysid developers',
+    maintainer_email='galvo-sysid@example.org',
+    description='Online system identification and drift monitoring of galvano scanners.',
+    license='Apache-2.0',
+    python_requires='>=3.11',
+    entry_points={
+        'console_scripts': [
+            f'galvo_driver = {PACKAGE}.nodes.driver_node:main',
+            f'sysid = {PACKAGE}.nodes.sysid_node:main',
+            f'watchdog = {PACKAGE}.nodes.watchdog_node:main',
+            f'galvo-sysid = {PACKAGE}.cli:main',
+        ],
+    },
+)
