@@ -13,7 +13,7 @@ import time
 
 __all__ = ['main']
 
-_PUBLISHER = '''
+_PUBLISHER = """
 import time, rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy, DurabilityPolicy
 from galvo_sysid_msgs.msg import ModalParameters
@@ -32,7 +32,7 @@ while time.monotonic() < end and pub.get_subscription_count() == 0:
 time.sleep(0.5)
 node.destroy_node()
 rclpy.shutdown()
-'''
+"""
 
 
 def main() -> int:

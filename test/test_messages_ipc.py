@@ -11,7 +11,7 @@ import rclpy
 from galvo_sysid_msgs.msg import ModalParameters
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-PUBLISHER = textwrap.dedent('''
+PUBLISHER = textwrap.dedent("""
     import time, rclpy
     from rclpy.qos import QoSProfile, ReliabilityPolicy, DurabilityPolicy
     from galvo_sysid_msgs.msg import ModalParameters
@@ -32,7 +32,7 @@ PUBLISHER = textwrap.dedent('''
     pub.wait_for_all_acked()
     node.destroy_node()
     rclpy.shutdown()
-''')
+""")
 
 
 def test_modal_parameters_cross_process() -> None:
