@@ -180,31 +180,28 @@ def fit_arx(u: ArrayLike, y: ArrayLike, *, sample_period: float, na: int = 15, n
         raise InvalidDataError('u or y contains NaN or Inf')
     phi, target = regressors(u_arr, y_arr, na, nb)
     rows, m = phi.shape
-    if solver == 'normal':
-        r = phi.T @ phi / rows
-        f = phi.T @ target / rows
-        sv = np.linalg.svd(r, compute_uv=False)
-        cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float('inf')
-        limit = np.inf
-        if cond <= limit:
-            try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter('ignore', scipy.linalg.LinAlgWarning)
-                    theta = np.asarray(scipy.linalg.solve(r, f, assume_a='sym',
-                                                          check_finite=False))
-            except (np.linalg.LinAlgError, scipy.linalg.LinAlgError) as exc:
-                raise IdentificationError(f'normal equations are singular: {exc}') from exc
-    else:
-        q, rr = scipy.linalg.qr(phi, mode='economic', check_finite=False)
-        sv = np.linalg.svd(rr, compute_uv=False)
-        cond = float((sv[0] / sv[-1]) ** 2) if sv[-1] > 0 else float('inf')
-        limit = np.inf
-        if cond <= limit:
-            theta = np.asarray(scipy.linalg.solve_triangular(rr, q.T @ target,
-                                                             check_finite=False))
-    if not cond <= limit:
-        raise IdentificationError(f'regression is numerically singular (cond(R) = {cond:.3g} > '
-                                  f'{limit:.0e}); is the input exciting?')
+    singular = 'regression is singular (cond(R) infinite): is the input exciting?'
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore', scipy.linalg.LinAlgWarning)
+            if solver == 'normal':
+                r = phi.T @ phi / rows
+                f = phi.T @ target / rows
+                sv = np.linalg.svd(r, compute_uv=False)
+                if not sv[-1] > 0:
+                    raise IdentificationError(singular)
+                cond = float(sv[0] / sv[-1])
+                theta = np.asarray(scipy.linalg.solve(r, f, assume_a='sym', check_finite=False))
+            else:
+                q, rr = scipy.linalg.qr(phi, mode='economic', check_finite=False)
+                sv = np.linalg.svd(rr, compute_uv=False)
+                if not sv[-1] > 0:
+                    raise IdentificationError(singular)
+                cond = float((sv[0] / sv[-1]) ** 2)
+                theta = np.asarray(scipy.linalg.solve_triangular(rr, q.T @ target,
+                                                                 check_finite=False))
+    except (np.linalg.LinAlgError, scipy.linalg.LinAlgError) as exc:
+        raise IdentificationError(f'{singular} ({exc})') from exc
     if not np.all(np.isfinite(theta)):
         raise IdentificationError('least-squares solution is not finite (singular regression)')
     resid = target - phi @ theta

@@ -98,6 +98,8 @@ def pade_delay_filter(delay: float, *, sample_period: float, order: int = 3) -> 
     _check_period(sample_period)
     if not (np.isfinite(delay) and delay >= 0):
         raise ConfigurationError(f'delay must be finite and >= 0, got {delay}')
+    if not 1 <= order <= 10:
+        raise ConfigurationError(f'pade order must be 1..10, got {order}')
     whole_f, frac = divmod(delay, sample_period)
     whole = round(whole_f)
     eps = 1e-9 * sample_period
