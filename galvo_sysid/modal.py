@@ -386,7 +386,8 @@ def bode_data(system: ModalModel | ArxModel | ContinuousModel, omega: ArrayLike,
         sample_period: Sample period [s] for ``input_dynamics``.
 
     Returns:
-        ``(magnitude_db, phase_deg)``.
+        ``(magnitude_db, phase_deg)``; the phase is unwrapped along ``omega`` and shifted by a
+        multiple of 360 deg so that it starts in (-360, 0] deg (a rigid body starts at -180).
     """
     w = np.asarray(omega, dtype=float)
     h = system.frequency_response(w)
@@ -399,4 +400,6 @@ def bode_data(system: ModalModel | ArxModel | ContinuousModel, omega: ArrayLike,
     with np.errstate(divide='ignore'):
         mag = 20 * np.log10(np.abs(h))
     phase = np.degrees(np.unwrap(np.angle(h)))
+    if phase.size:
+        phase = phase - 360.0 * np.floor(phase.flat[0] / 360.0 + 1.0 - 1e-9)
     return np.asarray(mag, dtype=float), np.asarray(phase, dtype=float)
