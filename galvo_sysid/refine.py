@@ -58,9 +58,11 @@ if TYPE_CHECKING:
 __all__ = [
     'DEFAULT_DAMPING_START',
     'DEFAULT_LAG_BOUNDS',
+    'DEFAULT_SCAN_POINTS',
     'RefinedFit',
     'filtered_fit_percent',
     'modal_regressors',
+    'model_fit_percent',
     'refine_fit',
     'second_difference',
 ]
@@ -70,6 +72,9 @@ DEFAULT_DAMPING_START = 0.03
 
 DEFAULT_LAG_BOUNDS = (0.0, 3.0)
 """Bounds of the estimated amplifier lag, in sample periods."""
+
+DEFAULT_SCAN_POINTS = 24
+"""Frequencies per band scanned for the first starting point."""
 
 _MAX_DAMPING = 0.3
 _MIN_DAMPING = 1e-5
@@ -122,8 +127,8 @@ class _Regressors:
 
     def __init__(self, u: NDArray[np.float64], *, sample_period: float, delay: int,
                  fraction: float) -> None:
-        if delay < 1:
-            raise ConfigurationError('the total whole-sample input delay must be >= 1 sample')
+        if delay < 0:
+            raise ConfigurationError('the input delay must be >= 0')
         self.t = sample_period
         self.delay = delay
         self.fraction = fraction
@@ -200,8 +205,7 @@ def modal_regressors(u: ArrayLike, natural_frequencies: Sequence[float],
         damping_ratios: zeta_i.
         sample_period: Sampling period T [s].
         lag_time_constant: Amplifier lag T_l [s] (0: none).
-        computation_delay: Whole samples of computation delay (>= 1 in total with the dead
-            time).
+        computation_delay: Whole samples of computation delay (>= 0).
         dead_time: Extra pure delay [s].
 
     Returns:
@@ -295,6 +299,41 @@ def filtered_fit_percent(yf: NDArray[np.float64], residual: NDArray[np.float64])
     """100 (1 - ||residual|| / ||yf - mean(yf)||)."""
     den = float(np.linalg.norm(yf - yf.mean()))
     return 100.0 * (1.0 - float(np.linalg.norm(residual)) / den) if den > 0 else float('nan')
+
+
+def model_fit_percent(model: ModalModel, current: ArrayLike, encoder: ArrayLike, *,
+                      sample_period: float, lag_time_constant: float = 0.0,
+                      computation_delay: int = 1, dead_time: float = 0.0) -> float:
+    """Fit [%] of a fixed model on the (1 - q^-1)^2-filtered averaged output.
+
+    The model (with the given input dynamics) is driven by the averaged current; the modes'
+    initial conditions and an offset are fitted by least squares, as in :func:`refine_fit`.
+
+    Args:
+        model: The modal model.
+        current: Current records (M, N) or one record (N,).
+        encoder: Encoder records, same shape.
+        sample_period: Sampling period [s].
+        lag_time_constant: Amplifier lag [s].
+        computation_delay: Whole samples of computation delay.
+        dead_time: Extra pure delay [s].
+
+    Returns:
+        ``100 (1 - ||yf - yf_model|| / ||yf - mean(yf)||)``.
+    """
+    cur, enc = _validate(current, encoder)
+    u_avg, y_avg = cur.mean(axis=0), enc.mean(axis=0)
+    regs = modal_regressors(u_avg, model.natural_frequencies, model.damping_ratios,
+                            sample_period=sample_period, lag_time_constant=lag_time_constant,
+                            computation_delay=computation_delay, dead_time=dead_time)
+    forced = np.tensordot(np.array([model.k0, *model.residues]), regs, axes=1)[_FIRST_ROW:]
+    yf = second_difference(y_avg)[_FIRST_ROW:]
+    nuisance = np.column_stack([
+        _free_responses(model.natural_frequencies, model.damping_ratios, u_avg.size,
+                        sample_period).T, np.ones(yf.size)])
+    target = yf - forced
+    coef = np.linalg.lstsq(nuisance, target, rcond=None)[0]
+    return filtered_fit_percent(yf, target - nuisance @ coef)
 
 
 class _Problem:
@@ -411,6 +450,48 @@ class _Problem:
             jac[:, j] = -(term1 + term2)
         return jac / self.y_scale
 
+    def scan_mode(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
+                  lag: float, grid: NDArray[np.float64], zeta_scan: float) -> float:
+        """Frequency on ``grid`` minimising the cost with mode i at ``zeta_scan``, others fixed.
+
+        The other columns are projected out once; each candidate then costs one filter and a
+        3-column least-squares solve.
+        """
+        n = self.n_modes
+        phi = self.columns(omega, zeta, lag)
+        mine = np.array([1 + i, 1 + n + 2 * i, 2 + n + 2 * i])
+        others = np.delete(phi, mine, axis=1)
+        scale = np.linalg.norm(others, axis=0)
+        scale[scale == 0] = 1.0
+        q, _ = qr(others / scale, mode='economic', check_finite=False)
+        r_o = self.yf - q @ (q.T @ self.yf)
+        x_lag, _ = self.regs.lag_state(lag)
+        best_w, best_gain = float(omega[i]), -1.0
+        cand = np.empty((self.k.size, 3))
+        for w in grid:
+            cand[:, 0] = self.regs.mode(float(w), zeta_scan, lag, x_lag)[_FIRST_ROW:]
+            cand[:, 1:] = _free_responses([w], [zeta_scan], self.n, self.t).T
+            c_o = cand - q @ (q.T @ cand)
+            gram = c_o.T @ c_o
+            rhs = c_o.T @ r_o
+            try:
+                gain = float(rhs @ np.linalg.solve(gram, rhs))
+            except np.linalg.LinAlgError:
+                continue
+            if gain > best_gain:
+                best_w, best_gain = float(w), gain
+        return best_w
+
+
+def _edge_mode(params: tuple[NDArray[np.float64], NDArray[np.float64], float],
+               band_list: Sequence[tuple[float, float]]) -> int | None:
+    """Index of the first mode stuck at a band edge or at the damping bound, else None."""
+    omega, zeta, _ = params
+    for i, ((lo, hi), w, z) in enumerate(zip(band_list, omega, zeta, strict=True)):
+        if not lo * 1.0005 < w < hi / 1.0005 or z > 0.99 * _MAX_DAMPING:
+            return i
+    return None
+
 
 def _validate(current: ArrayLike, encoder: ArrayLike) -> tuple[NDArray[np.float64],
                                                                 NDArray[np.float64]]:
@@ -457,7 +538,7 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
                damping_start: float = DEFAULT_DAMPING_START,
                extra_starts: Sequence[ModalModel] = (),
                lag_bounds: tuple[float, float] = DEFAULT_LAG_BOUNDS,
-               max_nfev: int = 100) -> RefinedFit:
+               scan_points: int = DEFAULT_SCAN_POINTS, max_nfev: int = 100) -> RefinedFit:
     """Fit the modal model with exact input dynamics to a window of moves (averaged).
 
     Args:
@@ -475,6 +556,8 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
             edge. Default: :func:`galvo_sysid.modal.default_bands`.
         damping_start: Damping ratio the modes start from (continuation; see module docs).
         extra_starts: Further starting models (e.g. the previous window's result).
+        scan_points: Frequencies per band of the starting scan (0: no scan, start from
+            ``initial`` only).
         lag_bounds: Bounds of the estimated lag [sample periods].
         max_nfev: Iteration limit of each start.
 
@@ -524,27 +607,42 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
         span = upper - lower
         return np.clip(x0, lower + 1e-3 * span, upper - 1e-3 * span)
 
-    starts = [initial, *extra_starts]
-    best = None
-    for model in starts:
+    for model in extra_starts:
         if model.n_modes != n:
             raise ConfigurationError('every starting model needs the same number of modes')
+    # Start 1: every mode's frequency scanned over its band at a large damping ratio.
+    x_init = start_vector(initial)
+    omega0, zeta0, lag0 = prob.unpack(x_init)
+    omega_scan = omega0.copy()
+    if scan_points > 1:
+        for i, (lo, hi) in enumerate(band_list):
+            grid = np.geomspace(lo * 1.01, hi / 1.01, scan_points)
+            omega_scan[i] = prob.scan_mode(i, omega_scan, zeta0, lag0, grid, damping_start)
+    starts = [prob.pack(omega_scan, zeta0, lag0)]
+    # Start 2: the initial model itself (if its frequencies differ), then any extra starts.
+    if np.max(np.abs(np.log(omega_scan / omega0))) > 0.01:
+        starts.append(x_init)
+    starts += [start_vector(model) for model in extra_starts]
+    best = None
+    for x0 in starts:
         try:
-            sol = least_squares(prob.residual, start_vector(model), jac=prob.jacobian,
-                                bounds=(lower, upper), x_scale='jac', max_nfev=max_nfev,
-                                method='trf')
+            sol = least_squares(prob.residual, x0, jac=prob.jacobian, bounds=(lower, upper),
+                                x_scale='jac', max_nfev=max_nfev, method='trf')
         except (ValueError, LinAlgError) as exc:
             raise IdentificationError(f'refined fit failed: {exc}') from exc
-        if best is None or sol.cost < best.cost:
-            best = sol
+        edge = _edge_mode(prob.unpack(sol.x), band_list)
+        key = (edge is not None, float(sol.cost))
+        if best is None or key < best[0]:
+            best = (key, sol, edge)
     assert best is not None
-    x = best.x
+    _, sol, edge = best
+    x = sol.x
     omega, zeta, lag = prob.unpack(x)
-    for i, ((lo, hi), w, z) in enumerate(zip(band_list, omega, zeta, strict=True), start=1):
-        if not lo * 1.0005 < w < hi / 1.0005 or z > 0.99 * _MAX_DAMPING:
-            raise IdentificationError(
-                f'no physical mode {i} in the band {lo:.4g}..{hi:.4g} rad/s (the fit ended at '
-                f'omega = {w:.4g} rad/s, zeta = {z:.3g})')
+    if edge is not None:
+        i, (lo, hi) = edge, band_list[edge]
+        raise IdentificationError(
+            f'no physical mode {i + 1} in the band {lo:.4g}..{hi:.4g} rad/s (the fit ended at '
+            f'omega = {omega[i]:.4g} rad/s, zeta = {zeta[i]:.3g})')
     phi, _, _, _, coef, resid = prob.factor(x)
     model_out = ModalModel(k0=float(coef[0]), residues=tuple(float(c) for c in coef[1: 1 + n]),
                            natural_frequencies=tuple(float(w) for w in omega),
