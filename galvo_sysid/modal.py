@@ -15,8 +15,11 @@ separates the modes first, in the z domain, and converts each selected block exa
    numerator (c1, c0) to ``k0 T^2 / 2 (1, 1)``, i.e. ``k0 = (c1 + c0) / T^2``.
 3. Resonant modes: in each frequency band, among the lightly damped pole pairs (complex,
    inside the unit circle, damping ratio <= ``max_damping``), the one with the largest modal
-   amplitude ``|k| / omega`` (the amplitude of its impulse response) is taken as the physical
-   mode; the others are spurious. Its continuous poles are ``s = log(p) / T``, so
+   contribution is taken as the physical mode; the others are spurious. The contribution is
+   by default the mode's resonance peak ``|k| / (2 zeta omega^2)`` (``selection='peak'``);
+   ``'h2'`` uses its H2 norm ``|k| / (2 omega^1.5 zeta^0.5)`` and ``'residue'`` its impulse
+   response amplitude ``|k| / omega`` (which picks a heavily damped noise pole pair over a
+   weakly excited third mode more often). Its continuous poles are ``s = log(p) / T``, so
    ``omega = |s|``, ``zeta = -Re(s) / |s|``, and k is the least-squares fit of the block
    numerator to the ZOH numerator ``(beta1, beta0)`` of the unit mode
    ``1 / (s^2 + 2 zeta omega s + omega^2)`` (exact when the block is a ZOH mode; any
@@ -132,14 +135,14 @@ class ModalDecomposition:
         rigid_poles: The two z-plane poles taken as the rigid body.
         mode_poles: The selected pole (upper half plane) of each mode, in band order.
         spurious_poles: All other poles.
-        amplitudes: Modal amplitude |k| / omega of each selected mode.
+        contributions: Modal contribution of each selected mode (see ``selection``).
     """
 
     model: ModalModel
     rigid_poles: tuple[complex, complex]
     mode_poles: tuple[complex, ...]
     spurious_poles: tuple[complex, ...]
-    amplitudes: tuple[float, ...]
+    contributions: tuple[float, ...]
 
 
 def _rigid_block(poles: NDArray[np.complex128], center: complex,
@@ -167,9 +170,18 @@ def _rigid_block(poles: NDArray[np.complex128], center: complex,
     return min(candidates)[1]
 
 
+def _contribution(k: float, omega: float, zeta: float, selection: str) -> float:
+    if selection == 'peak':
+        return abs(k) / (2.0 * zeta * omega**2)
+    if selection == 'h2':
+        return abs(k) / (2.0 * omega * float(np.sqrt(omega * zeta)))
+    return abs(k) / omega
+
+
 def modal_decomposition(arx: ArxModel, *, bands: Sequence[Band] | None = None,
                         max_damping: float = DEFAULT_MAX_DAMPING,
-                        reference: ModalModel = REFERENCE_MODEL) -> ModalDecomposition:
+                        reference: ModalModel = REFERENCE_MODEL,
+                        selection: str = 'peak') -> ModalDecomposition:
     """Decompose an ARX model into rigid body + one resonant mode per band (ZOH, exact).
 
     Args:
@@ -178,6 +190,8 @@ def modal_decomposition(arx: ArxModel, *, bands: Sequence[Band] | None = None,
             :func:`default_bands` of ``reference``.
         max_damping: Largest damping ratio accepted for a mode.
         reference: Model whose natural frequencies set the default bands.
+        selection: How to rank the candidate pole pairs of a band: ``'peak'``, ``'h2'`` or
+            ``'residue'`` (see the module docs).
 
     Returns:
         The decomposition.
@@ -194,6 +208,8 @@ def modal_decomposition(arx: ArxModel, *, bands: Sequence[Band] | None = None,
             raise ConfigurationError(f'band ({lo}, {hi}) must satisfy 0 < low < high')
     if not 0 < max_damping < 1:
         raise ConfigurationError(f'max_damping must be in (0, 1), got {max_damping}')
+    if selection not in ('peak', 'h2', 'residue'):
+        raise ConfigurationError(f"selection must be 'peak', 'h2' or 'residue', got {selection!r}")
     num, den = arx.transfer_function()
     lead = float(den[0])
     poles = np.roots(den).astype(np.complex128)
@@ -213,7 +229,7 @@ def modal_decomposition(arx: ArxModel, *, bands: Sequence[Band] | None = None,
     freqs: list[float] = []
     damps: list[float] = []
     selected: list[complex] = []
-    amplitudes: list[float] = []
+    contributions: list[float] = []
     for lo, hi in band_list:
         best: tuple[float, int, float, float, float] | None = None
         for i, p in enumerate(poles):
@@ -228,7 +244,7 @@ def modal_decomposition(arx: ArxModel, *, bands: Sequence[Band] | None = None,
             d1, d0 = _block_numerator(num, lead, poles, (i, partner))
             beta1, beta0 = zoh_mode_numerator(w, z, t)
             k = (d1 * beta1 + d0 * beta0) / (beta1**2 + beta0**2)
-            amp = abs(k) / w
+            amp = _contribution(k, w, z, selection)
             if best is None or amp > best[0]:
                 best = (amp, i, k, w, z)
         if best is None:
@@ -241,21 +257,21 @@ def modal_decomposition(arx: ArxModel, *, bands: Sequence[Band] | None = None,
         freqs.append(w)
         damps.append(z)
         selected.append(complex(poles[i]))
-        amplitudes.append(amp)
+        contributions.append(amp)
     model = ModalModel(k0=float(k0), residues=tuple(residues), natural_frequencies=tuple(freqs),
                        damping_ratios=tuple(damps))
     spurious = tuple(complex(p) for i, p in enumerate(poles) if i not in used)
     return ModalDecomposition(model=model, rigid_poles=(complex(poles[ri]), complex(poles[rj])),
                               mode_poles=tuple(selected), spurious_poles=spurious,
-                              amplitudes=tuple(amplitudes))
+                              contributions=tuple(contributions))
 
 
 def arx_to_modal(arx: ArxModel, *, bands: Sequence[Band] | None = None,
                  max_damping: float = DEFAULT_MAX_DAMPING,
-                 reference: ModalModel = REFERENCE_MODEL) -> ModalModel:
+                 reference: ModalModel = REFERENCE_MODEL, selection: str = 'peak') -> ModalModel:
     """Return the modal model of :func:`modal_decomposition`."""
-    return modal_decomposition(arx, bands=bands, max_damping=max_damping,
-                               reference=reference).model
+    return modal_decomposition(arx, bands=bands, max_damping=max_damping, reference=reference,
+                               selection=selection).model
 
 
 @dataclass(frozen=True)
@@ -359,8 +375,9 @@ def continuous_modal_decomposition(model: ContinuousModel, *,
             if not (lo <= w <= hi and 0 < z <= max_damping):
                 continue
             k = float(-2 * (r[i] * np.conj(l_i)).real)
-            if best is None or abs(k) / w > best[0]:
-                best = (abs(k) / w, i, k, w, z)
+            amp = _contribution(k, w, z, 'peak')
+            if best is None or amp > best[0]:
+                best = (amp, i, k, w, z)
         if best is None:
             raise IdentificationError(f'no lightly damped mode in band {lo:.4g} .. {hi:.4g}')
         _, i, k, w, z = best

@@ -92,13 +92,7 @@ def test_spurious_poles_are_rejected():
     """
     num, den = _zoh_tf(REFERENCE_MODEL)
     for w, z, k in ((7.5e4, 0.002, 2e4), (1.3e5, 0.05, 3e5)):
-        mode = ModalModel(k0=0.0, residues=(k,), natural_frequencies=(w,), damping_ratios=(z,))
-        ss = discretize(mode, NO_DELAY, T)
-        keep = np.r_[2:4]
-        n2, d2 = ss2tf(ss.a[np.ix_(keep, keep)], ss.b[keep, None], ss.c[None, keep],
-                       np.zeros((1, 1)))
-        num = np.polyadd(np.convolve(num, d2), np.convolve(n2[0], den))
-        den = np.convolve(den, d2)
+        num, den = _with_extra_mode(num, den, w, z, k)
     # negative real pole, residue 1e-6 (cf. the rigid body's k0 T^2 ~ 4e-4)
     num = np.polyadd(np.convolve(num, [1.0, 0.8]), 1e-6 * den)
     den = np.convolve(den, [1.0, 0.8])
@@ -111,6 +105,35 @@ def test_spurious_poles_are_rejected():
     assert not cont.is_real
     with pytest.raises(IdentificationError, match='complex'):
         continuous_modal_decomposition(cont)
+
+
+def _with_extra_mode(num, den, omega, zeta, k):
+    """num/den plus the ZOH of k/(s^2 + 2 zeta omega s + omega^2) (a spurious pole pair)."""
+    mode = ModalModel(k0=0.0, residues=(k,), natural_frequencies=(omega,),
+                      damping_ratios=(zeta,))
+    ss = discretize(mode, NO_DELAY, T)
+    keep = np.r_[2:4]
+    n2, d2 = ss2tf(ss.a[np.ix_(keep, keep)], ss.b[keep, None], ss.c[None, keep],
+                   np.zeros((1, 1)))
+    return np.polyadd(np.convolve(num, d2), np.convolve(n2[0], den)), np.convolve(den, d2)
+
+
+def test_selection_prefers_the_resonance_peak():
+    """A heavily damped noise pair with a larger residue next to a weak, lightly damped mode 3.
+
+    The default ('peak') keeps the true mode; ranking by |k|/omega ('residue') does not.
+    """
+    num, den = _with_extra_mode(*_zoh_tf(REFERENCE_MODEL), 2.1e5, 0.06, -6e5)
+    arx = _as_arx(num, den)
+    model = modal_decomposition(arx).model
+    assert model.natural_frequencies[2] == pytest.approx(1.674e5, rel=1e-6)
+    assert model.residues[2] == pytest.approx(-4.604e5, rel=1e-4)
+    assert modal_decomposition(arx, selection='h2').model.natural_frequencies[2] == \
+        pytest.approx(1.674e5, rel=1e-6)
+    wrong = modal_decomposition(arx, selection='residue').model
+    assert wrong.natural_frequencies[2] == pytest.approx(2.1e5, rel=1e-6)
+    with pytest.raises(ConfigurationError):
+        modal_decomposition(arx, selection='largest')
 
 
 def test_whole_model_conversion_of_a_clean_model():
