@@ -317,6 +317,15 @@ def _one_line(err: BaseException) -> str:
     return text.rstrip('.') or type(err).__name__
 
 
+def _explain(err: BaseException) -> str:
+    text = _one_line(err)
+    if 'end magic' in text:  # an mcap file without its footer: cut off, or never closed
+        return f'{text} (the mcap file is truncated: copy cut short or recording not closed)'
+    if 'malformed' in text or 'not a database' in text:
+        return f'{text} (the sqlite3 file is truncated or corrupt)'
+    return text
+
+
 def _storage_of(path: Path) -> str:
     if path.is_dir():
         files = [p.suffix for p in path.iterdir()]
@@ -354,6 +363,8 @@ class BagReader:
         if not self.path.exists():
             msg = f'bag not found: {self.path}'
             raise BagNotFoundError(msg)
+        if self.path.is_file() and self.path.name == 'metadata.yaml':
+            self.path = self.path.parent
         if self.path.is_dir() and not (self.path / 'metadata.yaml').exists():
             storage_files = sorted([*self.path.glob('*.mcap'), *self.path.glob('*.db3')])
             if len(storage_files) != 1:
@@ -370,7 +381,7 @@ class BagReader:
         except BagError:
             raise
         except Exception as err:  # rosbags raises many types on a bad file; all mean "corrupt"
-            msg = f'cannot read bag {self.path}: {_one_line(err)}'
+            msg = f'cannot read bag {self.path}: {_explain(err)}'
             raise CorruptBagError(msg) from None
         self._reader = reader
 
