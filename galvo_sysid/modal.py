@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg
+from scipy.signal import lfilter
 
 from galvo_sysid.arx import ArxModel
 from galvo_sysid.errors import ConfigurationError, IdentificationError
@@ -57,6 +58,8 @@ __all__ = [
     'continuous_modal_decomposition',
     'default_bands',
     'modal_decomposition',
+    'simulate_zoh',
+    'zoh_blocks',
     'zoh_mode_numerator',
 ]
 
@@ -106,6 +109,34 @@ def zoh_mode_numerator(omega: float, zeta: float, sample_period: float) -> tuple
     a1 = -2.0 * np.exp(-sigma * t) * np.cos(wd * t)
     h1 = h(t)
     return h1, float(h(2 * t) + (a1 - 1.0) * h1)
+
+
+def zoh_blocks(model: ModalModel, sample_period: float) -> list[tuple[NDArray[np.float64],
+                                                                      NDArray[np.float64]]]:
+    """The ZOH discretisation of a modal model as parallel 2nd-order blocks ``(b, a)``.
+
+    Rigid body ``k0 T^2 / 2 (z^-1 + z^-2) / (1 - z^-1)^2``, then each mode
+    ``k (beta1 z^-1 + beta0 z^-2) / (1 + a1 z^-1 + a0 z^-2)`` (powers of z^-1, lfilter
+    convention). The sum of the blocks is the exact ZOH model of Eq. 1.
+    """
+    t = sample_period
+    blocks = [(np.array([0.0, 0.5, 0.5]) * model.k0 * t * t, np.array([1.0, -2.0, 1.0]))]
+    for k, w, z in zip(model.residues, model.natural_frequencies, model.damping_ratios,
+                       strict=True):
+        beta1, beta0 = zoh_mode_numerator(w, z, t)
+        r = np.exp(-z * w * t)
+        a1 = -2.0 * r * np.cos(w * np.sqrt(1.0 - z * z) * t)
+        blocks.append((k * np.array([0.0, beta1, beta0]), np.array([1.0, a1, r * r])))
+    return blocks
+
+
+def simulate_zoh(model: ModalModel, u: ArrayLike, *, sample_period: float) -> NDArray[np.float64]:
+    """Response of the ZOH-discretised modal model to ``u`` from rest, along the last axis."""
+    u_arr = np.asarray(u, dtype=float)
+    y = np.zeros_like(u_arr)
+    for b, a in zoh_blocks(model, sample_period):
+        y += lfilter(b, a, u_arr, axis=-1)
+    return y
 
 
 def _block_numerator(num: NDArray[np.float64], lead: float, poles: NDArray[np.complex128],

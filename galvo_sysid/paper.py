@@ -21,13 +21,11 @@ import numpy as np
 from galvo_sysid.arx import ArxModel, fit_arx
 from galvo_sysid.delay import estimate_delay, fictitious_input, paper_delay_filter
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.modal import DEFAULT_MAX_DAMPING, modal_decomposition
+from galvo_sysid.modal import DEFAULT_MAX_DAMPING, modal_decomposition, simulate_zoh
 from galvo_sysid.plant import (
     REFERENCE_MODEL,
     TAU,
-    InputDynamics,
     ModalModel,
-    discretize,
     relative_errors,
 )
 from galvo_sysid.preprocess import (
@@ -81,13 +79,7 @@ class PaperResult:
 
 def _fit_percent(model: ModalModel, u_tilde: NDArray[np.float64], y: NDArray[np.float64],
                  sample_period: float) -> float:
-    ss = discretize(model, InputDynamics(computation_delay=0, lag_time_constant=0.0),
-                    sample_period)
-    x = np.zeros(ss.a.shape[0])
-    y_m = np.empty_like(y)
-    for k, uk in enumerate(u_tilde):
-        y_m[k] = ss.c @ x
-        x = ss.a @ x + ss.b * uk
+    y_m = simulate_zoh(model, u_tilde, sample_period=sample_period)
     den = float(np.linalg.norm(y - np.mean(y)))
     if den == 0:
         return float('nan')

@@ -18,9 +18,17 @@ from galvo_sysid.modal import (
     continuous_modal_decomposition,
     default_bands,
     modal_decomposition,
+    simulate_zoh,
     zoh_mode_numerator,
 )
-from galvo_sysid.plant import REFERENCE_MODEL, TAU, InputDynamics, ModalModel, discretize
+from galvo_sysid.plant import (
+    REFERENCE_MODEL,
+    TAU,
+    InputDynamics,
+    ModalModel,
+    discretize,
+    simulate,
+)
 
 T = TAU
 NO_DELAY = InputDynamics(computation_delay=0, lag_time_constant=0.0)
@@ -60,6 +68,14 @@ def test_zoh_mode_numerator_matches_matrix_exponential(omega, zeta):
     assert beta0 == pytest.approx((phi @ gamma - np.trace(phi) * gamma)[0], rel=1e-10)
     with pytest.raises(ConfigurationError):
         zoh_mode_numerator(omega, 1.2, T)
+
+
+def test_simulate_zoh_matches_the_plant_simulation():
+    rng = np.random.default_rng(4)
+    u = rng.standard_normal((2, 300))
+    y_ref = simulate(REFERENCE_MODEL, NO_DELAY, u, sample_period=T)
+    y = simulate_zoh(REFERENCE_MODEL, u, sample_period=T)
+    np.testing.assert_allclose(y, y_ref, rtol=1e-9, atol=1e-12 * np.max(np.abs(y_ref)))
 
 
 def test_exact_zoh_model_decomposes_to_table_i():
