@@ -199,7 +199,7 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
             it), ``na``, ``nb``, ``solver``, ``max_damping``, ``jackknife_groups``
             (default 10; 0 for no std, reported as nan). Refined: ``lag_time_constant``,
             ``estimate_lag``, ``computation_delay``, ``dead_time``, ``damping_start``,
-            ``extra_starts``, ``scan_points``, ``lag_bounds``, ``max_nfev`` (see
+            ``extra_starts``, ``scan_points``, ``lag_bounds``, ``resolve_z``, ``max_nfev`` (see
             :func:`galvo_sysid.refine.refine_fit`).
 
     Returns:
@@ -228,7 +228,8 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
         raise ConfigurationError(f'{len(bands)} bands for n_modes={n_modes}')
     paper_keys = {'delay', 'na', 'nb', 'solver', 'max_damping'}
     refine_keys = {'lag_time_constant', 'estimate_lag', 'computation_delay', 'dead_time',
-                   'damping_start', 'extra_starts', 'scan_points', 'lag_bounds', 'max_nfev'}
+                   'damping_start', 'extra_starts', 'scan_points', 'lag_bounds', 'max_nfev',
+                   'resolve_z'}
     groups = int(opts.pop('jackknife_groups', _JACKKNIFE_GROUPS))
     allowed = paper_keys | (refine_keys if method == 'refined' else set())
     unknown = set(opts) - allowed

@@ -58,6 +58,7 @@ if TYPE_CHECKING:
 __all__ = [
     'DEFAULT_DAMPING_START',
     'DEFAULT_LAG_BOUNDS',
+    'DEFAULT_RESOLVE_Z',
     'DEFAULT_SCAN_POINTS',
     'RefinedFit',
     'filtered_fit_percent',
@@ -75,6 +76,9 @@ DEFAULT_LAG_BOUNDS = (0.0, 3.0)
 
 DEFAULT_SCAN_POINTS = 24
 """Frequencies per band scanned for the first starting point."""
+
+DEFAULT_RESOLVE_Z = 3.0
+"""Significance |k_i| / std(k_i) below which a mode counts as not resolved."""
 
 _MAX_DAMPING = 0.3
 _MIN_DAMPING = 1e-5
@@ -265,6 +269,9 @@ class RefinedFit:
         cost: Sum of squared filtered residuals.
         n_evaluations: Residual evaluations spent by the optimiser (all starts).
         starts: Number of starting points tried.
+        unresolved_modes: Modes (1-based) whose residue is below ``resolve_z`` std: the data
+            do not determine them; their omega and zeta std are raised to at least those of a
+            uniform distribution over the band and over (0, 0.3).
     """
 
     model: ModalModel
@@ -282,6 +289,7 @@ class RefinedFit:
     cost: float
     n_evaluations: int
     starts: int
+    unresolved_modes: tuple[int, ...] = ()
 
     @property
     def input_delay(self) -> float:
@@ -538,7 +546,8 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
                damping_start: float = DEFAULT_DAMPING_START,
                extra_starts: Sequence[ModalModel] = (),
                lag_bounds: tuple[float, float] = DEFAULT_LAG_BOUNDS,
-               scan_points: int = DEFAULT_SCAN_POINTS, max_nfev: int = 100) -> RefinedFit:
+               scan_points: int = DEFAULT_SCAN_POINTS, resolve_z: float = DEFAULT_RESOLVE_Z,
+               max_nfev: int = 100) -> RefinedFit:
     """Fit the modal model with exact input dynamics to a window of moves (averaged).
 
     Args:
@@ -559,6 +568,9 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
         scan_points: Frequencies per band of the starting scan (0: no scan, start from
             ``initial`` only).
         lag_bounds: Bounds of the estimated lag [sample periods].
+        resolve_z: A mode whose |k_i| is below ``resolve_z`` times its std counts as not
+            resolved (see :attr:`RefinedFit.unresolved_modes`); such a mode may end at a band
+            edge without an error.
         max_nfev: Iteration limit of each start.
 
     Returns:
@@ -567,7 +579,8 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
     Raises:
         InvalidDataError: Bad shapes, too short, NaN/Inf.
         ConfigurationError: Bad options.
-        IdentificationError: The fit failed or a mode has no physical optimum in its band.
+        IdentificationError: The fit failed, or a resolved mode ended at its band edge (no
+            physical mode in that band).
     """
     cur, enc = _validate(current, encoder)
     if not (np.isfinite(sample_period) and sample_period > 0):
@@ -638,17 +651,29 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
     _, sol, edge = best
     x = sol.x
     omega, zeta, lag = prob.unpack(x)
-    if edge is not None:
-        i, (lo, hi) = edge, band_list[edge]
-        raise IdentificationError(
-            f'no physical mode {i + 1} in the band {lo:.4g}..{hi:.4g} rad/s (the fit ended at '
-            f'omega = {omega[i]:.4g} rad/s, zeta = {zeta[i]:.3g})')
     phi, _, _, _, coef, resid = prob.factor(x)
     model_out = ModalModel(k0=float(coef[0]), residues=tuple(float(c) for c in coef[1: 1 + n]),
                            natural_frequencies=tuple(float(w) for w in omega),
                            damping_ratios=tuple(float(z) for z in zeta))
     names = (*model_out.parameters(), *(('lag',) if estimate_lag else ()))
     cov, method = _covariance(prob, x, phi, coef, resid, cur, enc)
+    # A mode whose residue is not significant is not resolved by these data: its frequency and
+    # damping are a noise fit, so their linearised std would mislead (e.g. a pooled mean).
+    k_std = np.sqrt(np.clip(np.diag(cov)[1: 1 + n], 0.0, None))
+    unresolved = tuple(i for i in range(n) if abs(coef[1 + i]) < resolve_z * k_std[i])
+    if edge is not None and edge not in unresolved:
+        lo, hi = band_list[edge]
+        raise IdentificationError(
+            f'no physical mode {edge + 1} in the band {lo:.4g}..{hi:.4g} rad/s (the fit ended at '
+            f'omega = {omega[edge]:.4g} rad/s, zeta = {zeta[edge]:.3g})')
+    for i in unresolved:
+        lo, hi = band_list[i]
+        for j, floor in ((1 + n + i, (hi - lo) / math.sqrt(12.0)),
+                         (1 + 2 * n + i, _MAX_DAMPING / math.sqrt(12.0))):
+            var = max(float(cov[j, j]), floor * floor)
+            cov[j, :] = 0.0
+            cov[:, j] = 0.0
+            cov[j, j] = var
     return RefinedFit(
         model=model_out, lag_time_constant=float(lag), lag_estimated=estimate_lag,
         computation_delay=computation_delay, dead_time=float(dead_time),
@@ -656,7 +681,8 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
         covariance_method=method,
         initial_conditions=tuple(float(c) for c in coef[1 + n: 1 + 3 * n]),
         offset=float(coef[-1]), fit_percent=filtered_fit_percent(prob.yf, resid),
-        cost=float(resid @ resid), n_evaluations=prob.n_eval, starts=len(starts))
+        cost=float(resid @ resid), n_evaluations=prob.n_eval, starts=len(starts),
+        unresolved_modes=tuple(i + 1 for i in unresolved))
 
 
 def _covariance(prob: _Problem, x: NDArray[np.float64], phi: NDArray[np.float64],

@@ -1,0 +1,196 @@
+"""Accuracy benchmark: the paper's Table II, the paper pipeline and the refined fit.
+
+For several noise seeds and the paper's 19 rotation angles (0.1 psi .. 10 psi), one window of
+100 moves each from the closed-loop simulator (:func:`galvo_sysid.simulator.simulate_window`;
+``--source openloop`` uses the open-loop test data instead), identified by
+
+- the paper pipeline (method A, pure delay 1.6 T: ``identify_window(method='paper-A')``),
+- the refined fit (``identify_window(method='refined')``),
+
+then prints the median and 90th-percentile |relative error| per parameter (at 1 psi and over
+all angles), the time per window, the pooled estimate of each seed's 19 windows
+(:func:`galvo_sysid.identify.pool_results`) and how well the reported std match the errors.
+
+Run from the repository root::
+
+    python benchmarks/accuracy.py                  # 3 seeds, all 19 angles
+    python benchmarks/accuracy.py --seeds 0 1 2 3 4 --quick
+
+BLAS threads are limited to one (set before numpy loads): the fits work on small matrices,
+for which multithreaded OpenBLAS is slower, much slower on a busy 2-core machine.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
+os.environ.setdefault('OMP_NUM_THREADS', '1')
+
+import argparse
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from galvo_sysid.errors import GalvoSysidError
+from galvo_sysid.identify import IdentificationResult, identify_window, pool_results
+from galvo_sysid.plant import PAPER_ANGLES, PAPER_TABLE_II, PSI, REFERENCE_MODEL, TAU
+
+NAMES = tuple(REFERENCE_MODEL.parameters())
+TRUTH = REFERENCE_MODEL.parameters()
+
+TARGET_WINDOW = {'k0': 0.1, 'k1': 1, 'k2': 1.5, 'k3': 25, 'omega_1': 0.03, 'omega_2': 0.05,
+                 'omega_3': 1, 'zeta_1': 2, 'zeta_2': 2, 'zeta_3': 60}
+"""Issue 3's targets for the refined fit, one window of 100 moves at 1 psi (median |err| %)."""
+
+TARGET_POOLED = {'k0': 0.05, 'k1': 0.5, 'k2': 0.5, 'k3': 5, 'omega_1': 0.01, 'omega_2': 0.01,
+                 'omega_3': 0.3, 'zeta_1': 1, 'zeta_2': 1, 'zeta_3': 10}
+"""Issue 3's targets for the pooled estimate of 19 angles x 100 moves (|err| %)."""
+
+Source = Callable[[float, int, int], tuple[NDArray[np.float64], NDArray[np.float64]]]
+
+
+def _source(name: str) -> Source:
+    if name == 'simulator':
+        from galvo_sysid.simulator import simulate_window
+
+        def sim(angle: float, moves: int, seed: int) -> tuple[NDArray[np.float64],
+                                                              NDArray[np.float64]]:
+            cur, enc = simulate_window(angle, moves=moves, seed=seed)
+            return np.asarray(cur, dtype=float), np.asarray(enc, dtype=float)
+
+        return sim
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
+    from openloop_data import open_loop_window
+
+    def openloop(angle: float, moves: int, seed: int) -> tuple[NDArray[np.float64],
+                                                               NDArray[np.float64]]:
+        return open_loop_window(angle, moves=moves, seed=seed)
+
+    return openloop
+
+
+def _errors(result: IdentificationResult) -> dict[str, float]:
+    est = result.model.parameters()
+    return {n: 100.0 * (est[n] - TRUTH[n]) / TRUTH[n] for n in NAMES}
+
+
+def _pct(values: list[float], q: float) -> float:
+    return float(np.percentile(np.abs(values), q)) if values else float('nan')
+
+
+def _row(name: str, cells: list[float], width: int = 10) -> str:
+    return name.ljust(9) + ''.join(f'{c:{width}.3g}' for c in cells)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n', 1)[0])
+    parser.add_argument('--seeds', type=int, nargs='+', default=[0, 1, 2])
+    parser.add_argument('--moves', type=int, default=100)
+    parser.add_argument('--source', choices=('simulator', 'openloop'), default='simulator')
+    parser.add_argument('--quick', action='store_true',
+                        help='only 5 angles (0.1, 0.5, 1, 3, 10 psi) instead of 19')
+    args = parser.parse_args(argv)
+    angles = [a for a in PAPER_ANGLES if not args.quick
+              or round(a / PSI, 6) in (0.1, 0.5, 1.0, 3.0, 10.0)]
+    source = _source(args.source)
+    methods = ('paper-A', 'refined')
+    errs: dict[str, dict[str, list[float]]] = {m: {n: [] for n in NAMES} for m in methods}
+    errs_1psi: dict[str, dict[str, list[float]]] = {m: {n: [] for n in NAMES} for m in methods}
+    z_scores: dict[str, dict[str, list[float]]] = {m: {n: [] for n in NAMES} for m in methods}
+    times: dict[str, list[float]] = {m: [] for m in methods}
+    failures: dict[str, int] = dict.fromkeys(methods, 0)
+    lags: list[float] = []
+    pooled: list[IdentificationResult] = []
+    t_sim = 0.0
+    for seed in args.seeds:
+        per_seed: list[IdentificationResult] = []
+        for angle in angles:
+            t0 = time.perf_counter()
+            cur, enc = source(angle, args.moves, seed)
+            t_sim += time.perf_counter() - t0
+            for method in methods:
+                t0 = time.perf_counter()
+                try:
+                    res = identify_window(cur, enc, sample_period=TAU, method=method,
+                                          target_angle=angle,
+                                          **({'jackknife_groups': 0} if method != 'refined'
+                                             else {}))
+                except GalvoSysidError as exc:
+                    failures[method] += 1
+                    print(f'  seed {seed} angle {angle:g}: {method} failed: {exc}')
+                    continue
+                times[method].append(time.perf_counter() - t0)
+                e = _errors(res)
+                std = res.std_by_name()
+                for n in NAMES:
+                    errs[method][n].append(e[n])
+                    if abs(angle - PSI) < 1e-9:
+                        errs_1psi[method][n].append(e[n])
+                    z_scores[method][n].append((res.model.parameters()[n] - TRUTH[n]) / std[n]
+                                               if std[n] > 0 else float('nan'))
+                if method == 'refined':
+                    per_seed.append(res)
+                    lags.append(res.lag_time_constant / TAU)
+        if per_seed:
+            pooled.append(pool_results(per_seed))
+    n_win = len(args.seeds) * len(angles)
+    print(f'\nsource: {args.source}; seeds {args.seeds}; {len(angles)} angles x {args.moves} '
+          f'moves ({n_win} windows; data generation {t_sim:.1f} s)')
+    print('failures: ' + ', '.join(f'{m} {failures[m]}/{n_win}' for m in methods))
+
+    print('\n|relative error| [%] at 1 psi (one window of 100 moves; median over seeds)')
+    print('param'.ljust(9) + ''.join(h.rjust(10) for h in
+                                     ('TableII-A', 'paper-A', 'refined', 'target')))
+    for n in NAMES:
+        print(_row(n, [abs(PAPER_TABLE_II['A'][n]), _pct(errs_1psi['paper-A'][n], 50),
+                       _pct(errs_1psi['refined'][n], 50), TARGET_WINDOW[n]]))
+
+    print('\n|relative error| [%] over all angles and seeds: median / 90th percentile')
+    print('param'.ljust(9) + ''.join(h.rjust(10) for h in
+                                     ('TableII-A', 'paper med', 'paper p90', 'ref med',
+                                      'ref p90')))
+    for n in NAMES:
+        print(_row(n, [abs(PAPER_TABLE_II['A'][n]), _pct(errs['paper-A'][n], 50),
+                       _pct(errs['paper-A'][n], 90), _pct(errs['refined'][n], 50),
+                       _pct(errs['refined'][n], 90)]))
+
+    print('\ntime per window [ms]: median / 90th percentile (identify_window, 1 BLAS thread)')
+    for m in methods:
+        t = np.array(times[m]) * 1e3
+        if t.size:
+            print(f'  {m:8s} {np.median(t):7.1f} {np.percentile(t, 90):7.1f}')
+    if lags:
+        print(f'\nrefined: estimated amplifier lag / T: median {np.median(lags):.3f}, '
+              f'10-90 % {np.percentile(lags, 10):.3f} .. {np.percentile(lags, 90):.3f} '
+              f'(simulated 0.6)')
+
+    print('\nstd calibration: rms(error / reported std) per parameter (1 = calibrated)')
+    print('param'.ljust(9) + ''.join(h.rjust(10) for h in methods))
+    for n in NAMES:
+        cells = []
+        for m in methods:
+            z = np.array(z_scores[m][n])
+            z = z[np.isfinite(z)]
+            cells.append(float(np.sqrt(np.mean(z**2))) if z.size else float('nan'))
+        print(_row(n, cells))
+
+    if pooled:
+        print(f'\npooled refined estimate of {len(angles)} angles x {args.moves} moves, per '
+              f'seed: |error| [%] (median over seeds), reported std [%], target')
+        print('param'.ljust(9) + ''.join(h.rjust(10) for h in ('|err|', 'std', 'target')))
+        for n in NAMES:
+            e = [abs(_errors(p)[n]) for p in pooled]
+            s = [100.0 * p.std_by_name()[n] / abs(TRUTH[n]) for p in pooled]
+            print(_row(n, [float(np.median(e)), float(np.median(s)), TARGET_POOLED[n]]))
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
