@@ -7,8 +7,10 @@ watchdog node feeds it each window's identification result and publishes the
 
 Each parameter's relative deviation ``d = (identified - reference) / reference`` is judged
 against a relative tolerance and against the estimate's own noise: a deviation is significant
-only when ``|d| > n_sigma * s``, with ``s`` the identified standard deviation relative to the
-reference, so a deviation well inside the estimate's noise is never drift.
+only when ``|d| > n_sigma * hypot(s, f)``, with ``s`` the identified standard deviation
+relative to the reference and ``f`` the parameter's noise floor (the window-to-window scatter
+of the identification, which the reported std of a poorly observable parameter may
+understate), so a deviation well inside the estimate's noise is never drift.
 
 - ERROR: a significant deviation beyond the tolerance.
 - WARN: a significant deviation beyond ``warn_fraction`` of the tolerance, a drift building up
@@ -24,10 +26,10 @@ is added to the reported standard deviations, and the slope's standard error is 
 the residual scatter is larger than expected, so angle-dependent identification biases do not
 look like a trend.
 
-The default tolerances reflect what one window of 100 moves identifies reliably: omega_i to a
-fraction of a percent, k0 and k1 to a few percent, the third mode poorly (zeta_3 is hardly
-observable in positioning data: the paper's Table II has it off by +655 %), so its tolerance
-is wide.
+The default tolerances reflect what one window of 100 moves identifies reliably: omega_1,2 to
+a few hundredths of a percent, k0..k2 and zeta_1,2 to a few percent, the third mode hardly at
+all (the paper's Table II has zeta_3 off by +655 %; in the simulated closed loop the mode sits
+under a notch filter), so its tolerances are wide enough never to fire.
 """
 
 from __future__ import annotations
@@ -66,18 +68,27 @@ LEVEL_NAMES = ('OK', 'WARN', 'ERROR', 'STALE')
 """Names of the levels, indexed by level."""
 
 DEFAULT_TOLERANCES: dict[str, float] = {
-    'k0': 0.05, 'k1': 0.15, 'k2': 0.10, 'k3': 0.50,
-    'omega_1': 0.01, 'omega_2': 0.01, 'omega_3': 0.02,
-    'zeta_1': 0.30, 'zeta_2': 0.30, 'zeta_3': 1.00,
+    'k0': 0.02, 'k1': 0.05, 'k2': 0.08, 'k3': 5.0,
+    'omega_1': 0.01, 'omega_2': 0.01, 'omega_3': 0.6,
+    'zeta_1': 0.20, 'zeta_2': 0.20, 'zeta_3': 100.0,
 }
-"""Default relative tolerance per parameter of the 3-mode model (0.01 = 1 %)."""
+"""Default relative tolerance per parameter of the 3-mode model (0.01 = 1 %).
+
+Set from what one window of 100 moves identifies on the simulated closed loop (refined
+method, 75 windows over the paper's 19 angles, both signs): scatter (sd, max) of the relative
+error k0 0.1 % (0.4 %), k1 0.6 % (1.7 %), k2 1.2 % (4.7 %), omega_1 0.004 % (0.015 %),
+omega_2 0.008 % (0.03 %), zeta_1 0.9 % (4 %), zeta_2 1.4 % (6 %). The third mode sits under
+the controller's notch and is hardly excited: k3 off by up to 370 %, omega_3 by 30 % (its
+band's edge), zeta_3 by 5000 %, so its tolerances effectively switch it off.
+"""
 
 DEFAULT_NOISE_FLOOR: dict[str, float] = {
-    'k0': 0.005, 'k1': 0.015, 'k2': 0.01, 'k3': 0.10,
-    'omega_1': 0.0005, 'omega_2': 0.0005, 'omega_3': 0.002,
-    'zeta_1': 0.03, 'zeta_2': 0.03, 'zeta_3': 0.20,
+    'k0': 0.0015, 'k1': 0.008, 'k2': 0.015, 'k3': 1.5,
+    'omega_1': 0.0001, 'omega_2': 0.0002, 'omega_3': 0.15,
+    'zeta_1': 0.012, 'zeta_2': 0.02, 'zeta_3': 10.0,
 }
-"""Default window-to-window scatter of each relative deviation (added to the reported std)."""
+"""Default window-to-window scatter of each relative deviation (added to the reported std;
+about 1.5 times the scatter measured for :data:`DEFAULT_TOLERANCES`)."""
 
 
 class ModalEstimate(Protocol):
@@ -203,7 +214,8 @@ class DriftMonitor:
         noise_floor: Relative window-to-window scatter per parameter; missing names take
             :data:`DEFAULT_NOISE_FLOOR`.
         warn_fraction: Fraction of the tolerance beyond which a significant deviation warns.
-        n_sigma: A deviation within ``n_sigma`` reported standard deviations is not drift.
+        n_sigma: A deviation within ``n_sigma`` standard deviations (reported std combined
+            with the noise floor) is not drift.
         trend_windows: Windows in the trend test (0 disables it).
         trend_min_windows: Fewest windows before the trend test speaks.
         trend_sigma: Slope significance (in standard errors) needed to flag a trend.
@@ -219,7 +231,7 @@ class DriftMonitor:
                  noise_floor: Mapping[str, float] | None = None, warn_fraction: float = 0.5,
                  n_sigma: float = 3.0, trend_windows: int = 8, trend_min_windows: int = 3,
                  trend_sigma: float = 4.0, trend_fraction: float = 0.3,
-                 min_fit_percent: float = 90.0) -> None:
+                 min_fit_percent: float = 75.0) -> None:
         self.reference = reference
         self.names = parameter_names(reference.n_modes)
         given_tol = dict(tolerances or {})
@@ -307,7 +319,7 @@ class DriftMonitor:
         flagged: list[str] = []
         notes: list[str] = []
         for name, d, s, t in zip(self.names, dev, rel_std, tol, strict=True):
-            significant = abs(d) > self.n_sigma * s
+            significant = abs(d) > self.n_sigma * math.hypot(s, self.noise_floor[name])
             if significant and abs(d) > t:
                 level = ERROR
                 flagged.append(name)

@@ -99,8 +99,9 @@ def test_zeta3_has_a_wide_tolerance() -> None:
 
 
 def test_custom_tolerances_and_reference() -> None:
-    mon = DriftMonitor(tolerances={'k0': 0.001})
-    assert mon.assess(result({'k0': 0.002}), window_index=0).level == ERROR
+    assert DriftMonitor().assess(result({'k0': 0.01}), window_index=0).level == OK
+    mon = DriftMonitor(tolerances={'k0': 0.005})
+    assert mon.assess(result({'k0': 0.01}), window_index=0).level == ERROR
     with pytest.raises(ConfigurationError, match='unknown'):
         DriftMonitor(tolerances={'omega_9': 0.1})
     with pytest.raises(ConfigurationError, match='> 0'):
@@ -112,15 +113,16 @@ def test_custom_tolerances_and_reference() -> None:
 
 
 def drifting_sequence(rate: float, windows: int, seed: int = 0) -> list[FakeResult]:
-    """omega_1 moving ``rate`` (relative) per window; all parameters scatter at their floor."""
+    """omega_1 moving ``rate`` (relative) per window; the parameters scatter as measured on
+    the simulator (the noise floors are 1.5 times that), reported std alike."""
     rng = np.random.default_rng(seed)
+    scatter = {n: DEFAULT_NOISE_FLOOR[n] / 1.5 for n in NAMES}
     out = []
     for i in range(windows):
-        rel = {n: rng.normal(0, DEFAULT_NOISE_FLOOR[n]) for n in NAMES}
+        rel = {n: rng.normal(0, scatter[n]) for n in NAMES}
         rel['omega_1'] += rate * (i + 1)
         angle = 0.03 * (1 + i % 19) * (1 if i % 2 == 0 else -1)
-        out.append(result(rel, rel_std={n: DEFAULT_NOISE_FLOOR[n] for n in NAMES},
-                          angle=angle))
+        out.append(result(rel, rel_std=scatter, angle=angle))
     return out
 
 
@@ -150,18 +152,19 @@ def test_healthy_plant_raises_no_trend_alarm() -> None:
     mon = DriftMonitor()
     levels = [mon.assess(r, window_index=i).level
               for i, r in enumerate(drifting_sequence(0.0, 300, seed=11))]
-    assert levels.count(OK) >= 297
+    assert levels.count(OK) >= 298
     assert ERROR not in levels
 
 
 def test_angle_dependent_bias_is_not_a_trend() -> None:
-    # k0 identified 2 % low at small angles and exact at large ones, angles swept in order:
-    # a saw-tooth in the deviation, not a drift
+    # k0 identified exactly at small angles and up to 0.45 tolerance low at large ones, the
+    # angles swept in order: a saw-tooth in the deviation, not a drift
     mon = DriftMonitor()
     flagged = []
     for i in range(60):
         frac = (i % 10) / 9
-        v = mon.assess(result({'k0': -0.02 * (1 - frac)}, rel_std=0.003), window_index=i)
+        bias = -0.45 * DEFAULT_TOLERANCES['k0'] * frac
+        v = mon.assess(result({'k0': bias}, rel_std=0.003), window_index=i)
         flagged += list(v.flagged)
     assert 'k0' not in flagged
 
