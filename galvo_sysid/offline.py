@@ -1,0 +1,223 @@
+"""Offline identification of a bag: what ``galvo-sysid identify`` runs (no ROS graph).
+
+The moves of the bag go through exactly the objects the live nodes use, in the same order:
+each ``MoveSamples`` message becomes a :class:`~galvo_sysid.pairing.MoveHalf`
+(:mod:`galvo_sysid.messages`), :class:`~galvo_sysid.pairing.MoveWindower` pairs them and cuts
+windows of ``window_size`` moves per signed target angle,
+:func:`~galvo_sysid.identify.identify_window` fits each window and
+:class:`~galvo_sysid.drift.DriftMonitor` judges it. At the end of the bag, every unfinished
+window holding at least ``min_partial`` moves (default: half a window) is identified too and
+marked partial. Moves that cannot be used are listed with the reason; the rest is used.
+"""
+
+from __future__ import annotations
+
+import collections
+import concurrent.futures
+import contextlib
+import functools
+import math
+import multiprocessing
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from galvo_sysid.bagio import BagInfo, BagReader, SetAside
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError
+
+if TYPE_CHECKING:
+    import os
+    from collections.abc import Callable
+    from concurrent.futures import Future
+
+    from galvo_sysid.drift import DriftMonitor, DriftVerdict
+    from galvo_sysid.identify import IdentificationResult
+    from galvo_sysid.pairing import Rejection, Window
+
+__all__ = [
+    'METHODS',
+    'BagIdentification',
+    'WindowResult',
+    'identify_bag',
+    'rejection_to_dict',
+]
+
+METHODS = ('refined', 'paper-A', 'paper-B')
+"""Identification methods ``galvo-sysid identify --method`` accepts."""
+
+
+def _clean(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def rejection_to_dict(rejection: Rejection | SetAside) -> dict[str, Any]:
+    """JSON-ready form of a set-aside move: ``move_id``, ``target_angle``, ``stamp``, ``reason``."""
+    if isinstance(rejection, SetAside):
+        return rejection.to_dict()
+    return {'move_id': int(rejection.move_id), 'target_angle': _clean(rejection.target_angle),
+            'stamp': _clean(rejection.stamp), 'reason': rejection.reason}
+
+
+@dataclass(frozen=True)
+class WindowResult:
+    """One identified window.
+
+    Attributes:
+        window_index: The windower's running number of the window.
+        target_angle: Signed target angle [deg].
+        partial: Identified from an unfinished window at the end of the bag.
+        first_stamp: Stamp of the window's earliest move [s].
+        last_stamp: Stamp of its latest move [s].
+        result: The identification.
+        drift: The drift monitor's verdict.
+    """
+
+    window_index: int
+    target_angle: float
+    partial: bool
+    first_stamp: float
+    last_stamp: float
+    result: IdentificationResult
+    drift: DriftVerdict
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: ``window_index``, the result's fields, ``partial``, stamps, ``drift``."""
+        out: dict[str, Any] = {'window_index': self.window_index}
+        out.update(self.result.to_dict())
+        out['partial'] = self.partial
+        out['first_stamp'] = self.first_stamp
+        out['last_stamp'] = self.last_stamp
+        out['drift'] = self.drift.to_dict()
+        return out
+
+
+@dataclass(frozen=True)
+class BagIdentification:
+    """Everything ``galvo-sysid identify`` found in a bag.
+
+    Attributes:
+        info: The bag's topics and time range.
+        method: The identification method used.
+        window_size: Moves per complete window.
+        windows: Identified windows, in the order they were completed.
+        pooled: Pooled estimate over all windows (None without windows).
+        rejected: Set-aside moves and messages, JSON-ready (see :func:`rejection_to_dict`).
+        moves: Move halves read from the bag (current and encoder messages) / 2.
+    """
+
+    info: BagInfo
+    method: str
+    window_size: int
+    windows: tuple[WindowResult, ...]
+    pooled: IdentificationResult | None
+    rejected: tuple[dict[str, Any], ...]
+    moves: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``--json`` object: ``{"windows": [...], "pooled": {...}, "rejected": [...]}``."""
+        return {
+            'windows': [w.to_dict() for w in self.windows],
+            'pooled': None if self.pooled is None else self.pooled.to_dict(),
+            'rejected': list(self.rejected),
+        }
+
+
+def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
+                 window_size: int = 100, min_partial: int | None = None,
+                 namespace: str | None = None, monitor: DriftMonitor | None = None,
+                 jobs: int = 1,
+                 progress: Callable[[int, int], None] | None = None) -> BagIdentification:
+    """Identify every window of moves in a bag (see the module docs for the path taken).
+
+    Args:
+        bag: The bag (directory, ``.mcap`` or ``.db3``).
+        method: ``'refined'`` (default), ``'paper-A'`` or ``'paper-B'``.
+        window_size: Moves per window (the sysid node's default is 100).
+        min_partial: Smallest unfinished window identified at the end; default half a window.
+        namespace: Scanner namespace when the bag holds several.
+        monitor: Drift monitor (default: reference = Table I, default tolerances).
+        jobs: Windows fitted in parallel by this many forked processes (1: in this process).
+            The results do not depend on it: each window's fit is the same function call,
+            and the drift monitor still sees the windows in order.
+        progress: Called as ``progress(messages_done, messages_total)`` while reading.
+
+    Raises:
+        BagError: Missing, corrupt or truncated bag, no galvo topics, wrong topic type.
+        ConfigurationError: Unknown method or bad window settings.
+    """
+    from galvo_sysid.drift import DriftMonitor
+    from galvo_sysid.identify import pool_results
+    from galvo_sysid.online import fit_window
+    from galvo_sysid.pairing import MoveWindower
+
+    if method not in METHODS:
+        msg = f'unknown method {method!r}; choose one of {", ".join(METHODS)}'
+        raise ConfigurationError(msg)
+    min_moves = window_size // 2 if min_partial is None else int(min_partial)
+    if min_moves < 2:  # an average needs two moves
+        msg = f'min_partial must be >= 2, got {min_moves}'
+        raise ConfigurationError(msg)
+    if int(jobs) < 1:
+        msg = f'jobs must be >= 1, got {jobs}'
+        raise ConfigurationError(msg)
+    windower = MoveWindower(window_size=window_size)
+    judge = DriftMonitor() if monitor is None else monitor
+    rejected: list[dict[str, Any]] = []
+    fit = functools.partial(fit_window, method=method)
+    pending: collections.deque[tuple[Window, Future[IdentificationResult] | None]] = \
+        collections.deque()
+    windows: list[WindowResult] = []
+
+    def drain(limit: int) -> None:
+        """Finish the oldest windows, in order, until at most ``limit`` are in flight."""
+        while len(pending) > limit:
+            window, future = pending.popleft()
+            try:
+                result = fit(window) if future is None else future.result()
+            except Exception as err:  # like the sysid node: a failed fit loses its window only
+                text = _one_line(err) if isinstance(err, GalvoSysidError) else \
+                    f'unexpected {type(err).__name__}: {_one_line(err)}'
+                reason = f'window {window.index} not identified: {text}'
+                rejected.extend({'move_id': mid, 'target_angle': window.target_angle,
+                                 'stamp': None, 'reason': reason} for mid in window.move_ids)
+                continue
+            verdict = judge.assess(result, window_index=window.index)
+            windows.append(WindowResult(window.index, window.target_angle, window.partial,
+                                        window.first_stamp, window.last_stamp, result, verdict))
+
+    with contextlib.ExitStack() as stack:
+        pool = None
+        if int(jobs) > 1:
+            # fork: the children inherit the imported numerics (no ROS in this process)
+            pool = stack.enter_context(concurrent.futures.ProcessPoolExecutor(
+                max_workers=int(jobs), mp_context=multiprocessing.get_context('fork')))
+        in_flight = 2 * int(jobs) if pool is not None else 0
+
+        def submit(window: Window) -> None:
+            pending.append((window, None if pool is None else pool.submit(fit, window)))
+            drain(in_flight)
+
+        with BagReader(bag) as reader:
+            current, encoder = reader.galvo_topics(namespace=namespace)
+            info = reader.info
+            total = sum(t.count for t in info.topics if t.topic in {current, encoder})
+            for done, item in enumerate(reader.move_halves(namespace=namespace), start=1):
+                if isinstance(item, SetAside):
+                    rejected.append(item.to_dict())
+                else:
+                    for window in windower.add(item):
+                        submit(window)
+                rejected.extend(rejection_to_dict(r) for r in windower.pop_rejections())
+                if progress is not None:
+                    progress(done, total)
+        for window in windower.flush(min_moves=min_moves):
+            submit(window)
+        rejected.extend(rejection_to_dict(r) for r in windower.pop_rejections())
+        drain(0)
+    pooled = pool_results([w.result for w in windows]) if windows else None
+    return BagIdentification(info=info, method=method, window_size=window_size,
+                             windows=tuple(windows), pooled=pooled, rejected=tuple(rejected),
+                             moves=total / 2)
+
+
+def _one_line(err: BaseException) -> str:
+    return ' '.join(str(err).split()) or type(err).__name__
