@@ -1,0 +1,225 @@
+"""What the three nodes share: QoS profiles, declared parameters, a clean main loop."""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import rclpy
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import try_shutdown
+
+from galvo_sysid.errors import ConfigurationError
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
+    from rclpy.impl.rcutils_logger import RcutilsLogger
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+__all__ = [
+    'CURRENT_TOPIC',
+    'DIAGNOSTICS_TOPIC',
+    'DRIFT_TOPIC',
+    'ENCODER_TOPIC',
+    'RESULT_TOPIC',
+    'ParamSpec',
+    'ParameterSet',
+    'diagnostics_qos',
+    'logger',
+    'moves_qos',
+    'results_qos',
+    'run_node',
+    'scanner_name',
+]
+
+CURRENT_TOPIC = 'galvo/current'
+ENCODER_TOPIC = 'galvo/encoder'
+RESULT_TOPIC = 'galvo/modal_parameters'
+DRIFT_TOPIC = 'galvo/drift'
+DIAGNOSTICS_TOPIC = '/diagnostics'
+"""Topic names: relative (a namespace per scanner prefixes them), except /diagnostics."""
+
+
+def moves_qos(depth: int) -> QoSProfile:
+    """Reliable, volatile; ``depth`` messages kept (0: keep all)."""
+    if depth <= 0:
+        return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
+    return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+def results_qos(depth: int = 10) -> QoSProfile:
+    """Reliable, transient local: a late subscriber gets the last ``depth`` results."""
+    return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def diagnostics_qos() -> QoSProfile:
+    """What diagnostic_aggregator and rqt_robot_monitor expect: reliable, volatile, depth 10."""
+    return QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+def logger(node: Node) -> RcutilsLogger:
+    """The node's logger (typed; rclpy leaves Node.get_logger unannotated)."""
+    log: RcutilsLogger = node.get_logger()
+    return log
+
+
+def scanner_name(node: Node, given: str = '') -> str:
+    """The scanner's name: ``given``, else the node's namespace without slashes, else 'galvo'."""
+    if given:
+        return given
+    ns = node.get_namespace().strip('/').replace('/', '_')
+    return ns or 'galvo'
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One declared parameter: default, description and (for numbers) an inclusive range.
+
+    A ``low``/``high`` of None leaves that side open (the check is done in Python; ROS
+    ranges need both ends, so a half-open range is declared without a ROS range).
+    """
+
+    name: str
+    default: Any
+    description: str
+    low: float | None = None
+    high: float | None = None
+    read_only: bool = False
+    choices: tuple[str, ...] = ()
+    exclusive_low: bool = False
+
+    def descriptor(self) -> ParameterDescriptor:
+        """The ROS descriptor (with IntegerRange / FloatingPointRange when both ends given)."""
+        text = self.description
+        if self.choices:
+            text += f' (one of: {", ".join(self.choices)})'
+        d = ParameterDescriptor(description=text, read_only=self.read_only)
+        if self.low is not None and self.high is not None and not self.exclusive_low:
+            if isinstance(self.default, bool):
+                pass
+            elif isinstance(self.default, int):
+                d.integer_range = [IntegerRange(from_value=int(self.low), to_value=int(self.high),
+                                                step=1)]
+            elif isinstance(self.default, float):
+                d.floating_point_range = [FloatingPointRange(
+                    from_value=float(self.low), to_value=float(self.high), step=0.0)]
+        return d
+
+    def check(self, value: Any) -> str | None:
+        """Why ``value`` is not acceptable, or None."""
+        if self.choices and value not in self.choices:
+            return f'{self.name} must be one of {list(self.choices)}, got {value!r}'
+        values: Sequence[Any]
+        values = value if isinstance(value, list | tuple) else [value]
+        for v in values:
+            if isinstance(v, bool) or not isinstance(v, int | float):
+                continue
+            if isinstance(v, float) and not math.isfinite(v):
+                return f'{self.name} must be finite, got {v}'
+            if self.low is not None and (v < self.low or (self.exclusive_low and v <= self.low)):
+                op = '>' if self.exclusive_low else '>='
+                return f'{self.name} must be {op} {self.low:g}, got {v}'
+            if self.high is not None and v > self.high:
+                return f'{self.name} must be <= {self.high:g}, got {v}'
+        return None
+
+
+class ParameterSet:
+    """Declare parameters, validate them, and apply accepted changes.
+
+    ``validate(values) -> reason | None`` sees the complete would-be parameter values (old
+    ones updated by the change); ``apply(values, changed)`` is called after an accepted
+    change. A rejected change leaves the node's values as they were.
+    """
+
+    def __init__(self, node: Node, specs: Sequence[ParamSpec], *,
+                 validate: Callable[[dict[str, Any]], str | None] | None = None,
+                 apply: Callable[[dict[str, Any], set[str]], None] | None = None) -> None:
+        self._node = node
+        self.specs = {s.name: s for s in specs}
+        self._validate = validate
+        self._apply = apply
+        for s in specs:
+            node.declare_parameter(s.name, s.default, s.descriptor())
+        self.values: dict[str, Any] = {
+            s.name: node.get_parameter(s.name).value for s in specs}
+        reason = self.check(self.values)
+        if reason is not None:
+            raise ConfigurationError(reason)
+        node.add_on_set_parameters_callback(self._on_set)
+
+    def check(self, values: dict[str, Any]) -> str | None:
+        """Why a set of values is not acceptable, or None."""
+        for name, spec in self.specs.items():
+            reason = spec.check(values[name])
+            if reason is not None:
+                return reason
+        return self._validate(values) if self._validate else None
+
+    def _on_set(self, params: list[Parameter]) -> SetParametersResult:
+        new = dict(self.values)
+        changed: set[str] = set()
+        for p in params:
+            if p.name in self.specs:
+                new[p.name] = p.value
+                changed.add(p.name)
+        reason = self.check(new)
+        if reason is not None:
+            logger(self._node).warning(f'parameter change rejected: {reason}')
+            return SetParametersResult(successful=False, reason=reason)
+        self.values = new
+        if changed and self._apply is not None:
+            try:
+                self._apply(new, changed)
+            except ConfigurationError as err:  # pragma: no cover - validate should catch it
+                return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+
+def run_node(factory: Callable[[], Node], *, args: Sequence[str] | None = None,
+             threads: int = 1) -> int:
+    """Create the node and spin it until Ctrl-C / SIGTERM; return an exit code.
+
+    A configuration error (e.g. a parameter file with an out-of-range value) is printed as
+    one line and gives exit code 2; Ctrl-C gives 0 without a traceback.
+    """
+    rclpy.init(args=None if args is None else list(args))
+    node: Node | None = None
+    code = 0
+    try:
+        node = factory()
+        executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else None
+        if executor is None:
+            rclpy.spin(node)
+        else:
+            executor.add_node(node)
+            executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ConfigurationError, ParameterException) as err:
+        print(f'error: {err}', file=sys.stderr)
+        code = 2
+    finally:
+        if node is not None:
+            close = getattr(node, 'close', None)
+            if callable(close):
+                close()
+            node.destroy_node()
+        try_shutdown()
+    return code

@@ -1,0 +1,266 @@
+"""``galvo_driver``: a simulated galvano scanner doing positioning moves, published live.
+
+Wraps :class:`galvo_sysid.simulator.GalvoSimulator` (closed loop, Table I plant, input
+dynamics, noise, quantised encoder). Moves follow the paper's schedule: for each angle of
+``angles``, ``moves_per_angle`` moves alternating forward (+a) and return (-a). Each move is
+published on ``galvo/current`` and ``galvo/encoder`` (``MoveSamples``, same move_id, stamp =
+the move's first sample: ``stamp_origin`` + simulated time).
+
+Pace: ``rate_factor`` 1 is real time (165 moves/s back to back), 10 ten times faster, 0 as
+fast as possible. Plant changes take effect from the next move when their parameters are set
+(at start-up or live with ``ros2 param set``): ``drift.*`` (a parameter drifting linearly),
+``step.*`` (a step change) and ``effects`` (the physical effects, as the discrepancy
+workflow's JSON list).
+
+Run: ``galvo_driver --ros-args --params-file config/driver.yaml``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import threading
+import time
+from typing import TYPE_CHECKING, Any
+
+from galvo_sysid_msgs.msg import MoveSamples
+from rclpy.duration import Duration
+from rclpy.node import Node
+
+from galvo_sysid.effects import Drift, PlantEffects, PlantSpec, StepChange
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError
+from galvo_sysid.messages import fill, fill_header, move_samples_fields
+from galvo_sysid.nodes._common import (
+    CURRENT_TOPIC,
+    ENCODER_TOPIC,
+    ParameterSet,
+    ParamSpec,
+    logger,
+    moves_qos,
+    run_node,
+)
+from galvo_sysid.plant import PAPER_ANGLES
+from galvo_sysid.simulator import GalvoSimulator
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator, Sequence
+
+    from galvo_sysid.simulator import Move
+
+__all__ = ['PARAMETERS', 'DriverNode', 'PlantChanges', 'main']
+
+_PLANT_NAMES = tuple(PlantSpec().parameters())
+
+PARAMETERS = (
+    ParamSpec('angles', list(PAPER_ANGLES), 'rotation angles of the schedule [deg] (positive; '
+              'each is moved forward then back)', 1e-6, 20.0),
+    ParamSpec('moves_per_angle', 200, 'moves per angle, alternating +a/-a (even)', 2, 1_000_000),
+    ParamSpec('cycles', 0, 'times through the schedule (0: forever)', 0, 1_000_000_000),
+    ParamSpec('rate_factor', 1.0, 'simulated seconds per wall second (1 real time, 0 as fast '
+              'as possible)', 0.0, 1e6),
+    ParamSpec('seed', 0, 'noise seed', 0, 2**31 - 1, read_only=True),
+    ParamSpec('wait_for_subscribers', 1, 'subscribers each topic needs before moves start '
+              '(0: start at once)', 0, 1000),
+    ParamSpec('wait_timeout', 0.0, 'give up waiting for subscribers after this long and start '
+              'anyway [s] (0: wait forever)', 0.0, 1e6),
+    ParamSpec('exit_when_done', False, 'exit once the schedule is done (cycles > 0)'),
+    ParamSpec('qos_depth', 1000, 'publisher queue depth (0: keep all)', 0, 1_000_000,
+              read_only=True),
+    ParamSpec('drift.parameter', '', 'plant parameter that drifts ("" for none)',
+              choices=('', *_PLANT_NAMES)),
+    ParamSpec('drift.rate', 0.0, 'relative change per drift.unit (e.g. -0.001)', -1.0, 1.0),
+    ParamSpec('drift.unit', 'second', 'unit of the drift rate', choices=('second', 'move')),
+    ParamSpec('step.parameter', '', 'plant parameter that steps ("" for none)',
+              choices=('', *_PLANT_NAMES)),
+    ParamSpec('step.factor', 1.0, 'the step multiplies the parameter by this', 0.01, 100.0),
+    ParamSpec('step.at_move', -1, 'move index of the step (-1: the next move)', -1, 2**62),
+    ParamSpec('effects', '[]', 'physical effects as JSON: [{"effect": name, "parameters": '
+              '{...}}, ...] (see galvo_sysid.effects)'),
+)
+
+
+def _effects(text: str) -> PlantEffects:
+    try:
+        items = json.loads(text or '[]')
+    except json.JSONDecodeError as err:
+        raise ConfigurationError(f'effects is not valid JSON: {err}') from err
+    if not isinstance(items, list):
+        raise ConfigurationError('effects must be a JSON list')
+    return PlantEffects.from_list(items)
+
+
+def _validate(values: dict[str, Any]) -> str | None:
+    if values['moves_per_angle'] % 2:
+        return f'moves_per_angle must be even, got {values["moves_per_angle"]}'
+    if not values['angles']:
+        return 'angles must not be empty'
+    if max(values['angles']) > 20.0:
+        return 'angles must stay within the +-20 deg range'
+    try:
+        _effects(values['effects'])
+    except GalvoSysidError as err:
+        return str(err)
+    return None
+
+
+class PlantChanges:
+    """Turns the driver's change parameters into simulator calls (no ROS)."""
+
+    def __init__(self, simulator: GalvoSimulator) -> None:
+        self.sim = simulator
+        self._base = simulator.plant
+
+    def apply(self, values: dict[str, Any], changed: set[str]) -> list[str]:
+        """Apply the changes named in ``changed``; return what was done, one line each."""
+        sim = self.sim
+        done: list[str] = []
+        if 'effects' in changed:
+            effects = _effects(values['effects'])
+            sim.set_plant(PlantSpec(model=self._base.model, dynamics=self._base.dynamics,
+                                    effects=effects))
+            active = effects.to_list()
+            done.append(f'effects now {json.dumps(active) if active else "none"}')
+        if changed & {'drift.parameter', 'drift.rate', 'drift.unit', 'step.parameter',
+                      'step.factor', 'step.at_move'}:
+            sim.clear_changes()
+            name, rate, unit = values['drift.parameter'], values['drift.rate'], values['drift.unit']
+            if name and rate:
+                start = sim.time if unit == 'second' else sim.move_count
+                sim.add_drift(Drift(parameter=name, rate=rate, unit=unit, start=start))
+                when = f't = {start:.3f} s' if unit == 'second' else f'move {start}'
+                done.append(f'drift: {name} changes {100 * rate:+g} % per {unit} from {when}')
+            name, factor = values['step.parameter'], values['step.factor']
+            at = values['step.at_move']
+            if name and factor != 1.0:
+                at_move = sim.move_count if at < 0 else at
+                sim.add_step(StepChange(parameter=name, value=factor, at=at_move, unit='move',
+                                        relative=True))
+                done.append(f'step: {name} x {factor:g} from move {at_move}')
+            if not done:
+                done.append('no drift or step change')
+        return done
+
+
+class DriverNode(Node):
+    """The driver node (see the module docs)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('galvo_driver', **kwargs)
+        self.log = logger(self)
+        self._lock = threading.Lock()
+        self.params = ParameterSet(self, PARAMETERS, validate=_validate, apply=self._apply)
+        v = self.params.values
+        self.sim = GalvoSimulator(seed=v['seed'])
+        self.changes = PlantChanges(self.sim)
+        for line in self.changes.apply(v, {n for n in v if n.startswith(('drift.', 'step.',
+                                                                          'effects'))}):
+            self.log.info(line)
+        qos = moves_qos(v['qos_depth'])
+        self.current = self.create_publisher(MoveSamples, CURRENT_TOPIC, qos)
+        self.encoder = self.create_publisher(MoveSamples, ENCODER_TOPIC, qos)
+        self.published = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name='galvo-driver', daemon=True)
+        self._thread.start()
+
+    def _apply(self, values: dict[str, Any], changed: set[str]) -> None:
+        with self._lock:
+            for line in self.changes.apply(values, changed):
+                self.log.info(line)
+
+    def _schedule(self) -> Iterator[Move]:
+        cycle = 0
+        while not self._stop.is_set():
+            v = self.params.values
+            if v['cycles'] and cycle >= v['cycles']:
+                return
+            yield from self.sim.moves(angles=[float(a) for a in v['angles']],
+                                      moves_per_angle=int(v['moves_per_angle']))
+            cycle += 1
+
+    def _wait_for_subscribers(self) -> bool:
+        need = self.params.values['wait_for_subscribers']
+        timeout = self.params.values['wait_timeout']
+        if not need:
+            return True
+        self.log.info(f'waiting for {need} subscriber(s) on {self.current.topic_name} and '
+                      f'{self.encoder.topic_name}')
+        end = time.monotonic() + timeout if timeout > 0 else math.inf
+        while not self._stop.is_set():
+            if min(self.current.get_subscription_count(),
+                   self.encoder.get_subscription_count()) >= need:
+                return True
+            if time.monotonic() > end:
+                self.log.warning('no subscribers yet; starting anyway')
+                return True
+            self._stop.wait(0.05)
+        return False
+
+    def _run(self) -> None:
+        try:
+            self._publish_moves()
+        except Exception as err:  # a crash here must be said, not lost with the thread
+            if self._stop.is_set() or not self.context.ok():
+                return  # shutting down (Ctrl-C): publishing may fail, nothing to say
+            what = str(err) if isinstance(err, GalvoSysidError) else \
+                f'unexpected {type(err).__name__}: {err}'
+            self.log.error(f'simulation stopped: {what}')
+
+    def _publish_moves(self) -> None:
+        if not self._wait_for_subscribers():
+            return
+        origin = self.get_clock().now().nanoseconds * 1e-9
+        wall0 = time.monotonic()
+        sim0 = self.sim.time
+        v = self.params.values
+        self.log.info(f'moving: {len(v["angles"])} angles x {v["moves_per_angle"]} moves, '
+                      f'rate factor {v["rate_factor"]:g}')
+        moves = self._schedule()
+        while not self._stop.is_set():
+            with self._lock:
+                move = next(moves, None)
+            if move is None:
+                break
+            cfg = self.sim.config
+            rate = float(self.params.values['rate_factor'])
+            if rate > 0:  # publish when the move has happened (its record is complete)
+                due = wall0 + (move.stamp - sim0 + cfg.record_length * cfg.sample_period) / rate
+                delay = due - time.monotonic()
+                if delay > 0 and self._stop.wait(delay):
+                    break
+                if delay < -1.0:  # fell behind (e.g. a rate change): do not burst to catch up
+                    wall0 -= delay
+            self._publish(move, stamp=origin + move.stamp)
+        if not self._stop.is_set():
+            for pub in (self.current, self.encoder):
+                pub.wait_for_all_acked(Duration(seconds=10))
+            self.log.info(f'schedule done after {self.published} moves')
+            if self.params.values['exit_when_done']:
+                import os
+                import signal
+
+                os.kill(os.getpid(), signal.SIGINT)
+
+    def _publish(self, move: Move, *, stamp: float) -> None:
+        for pub, data in ((self.current, move.current), (self.encoder, move.encoder)):
+            msg = fill(MoveSamples(), move_samples_fields(
+                move_id=move.move_id, target_angle=move.target_angle,
+                sample_period=move.sample_period, data=data))
+            fill_header(msg, stamp=stamp)
+            pub.publish(msg)
+        self.published += 1
+
+    def close(self) -> None:
+        """Stop publishing."""
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Entry point of ``galvo_driver``."""
+    return run_node(DriverNode, args=sys.argv if args is None else args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,175 @@
+"""``sysid``: online identification of the scanner, one window of moves at a time.
+
+Subscribes to ``galvo/current`` and ``galvo/encoder`` (``MoveSamples``), pairs the halves by
+move_id, collects ``window_size`` moves per signed target angle and publishes each window's
+identified ``ModalParameters`` on ``galvo/modal_parameters`` (reliable, transient local).
+The logic is :class:`galvo_sysid.online.SysidTask`; fits run on a worker thread (by default
+in a child process), never in the subscription callbacks.
+
+Run: ``sysid --ros-args --params-file config/sysid.yaml [-r __ns:=/scanner_1]``.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+from typing import TYPE_CHECKING, Any
+
+from galvo_sysid_msgs.msg import ModalParameters, MoveSamples
+from rclpy.node import Node
+
+from galvo_sysid.errors import GalvoSysidError
+from galvo_sysid.messages import fill, fill_header, modal_parameters_fields, move_half_from_msg
+from galvo_sysid.nodes._common import (
+    CURRENT_TOPIC,
+    ENCODER_TOPIC,
+    RESULT_TOPIC,
+    ParameterSet,
+    ParamSpec,
+    logger,
+    moves_qos,
+    results_qos,
+    run_node,
+)
+from galvo_sysid.online import FitOutcome, SysidTask, fit_window
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+__all__ = ['PARAMETERS', 'SysidNode', 'main']
+
+METHODS = ('refined', 'paper-A', 'paper-B')
+
+PARAMETERS = (
+    ParamSpec('window_size', 100, 'moves of one signed target angle per identification window',
+              2, 100_000),
+    ParamSpec('samples', 0, 'expected samples per record (0: the first move of a window '
+              'fixes it)', 0, 10_000_000),
+    ParamSpec('max_samples', 65536, 'largest record accepted [samples]', 32, 10_000_000),
+    ParamSpec('pair_timeout', 1.0, 'a half still unpaired this long (by stamps) is set aside '
+              '[s]', 0.0, 3600.0, exclusive_low=True),
+    ParamSpec('time_jump', 1.0, 'stamps jumping back by more than this reset the buffers [s]',
+              0.0, 1e6, exclusive_low=True),
+    ParamSpec('max_pending', 2000, 'most unpaired halves held', 1, 10_000_000),
+    ParamSpec('max_windows', 64, 'most open windows held (distinct target angles)', 1, 100_000),
+    ParamSpec('max_buffered_samples', 20_000_000, 'most samples held in open windows',
+              1000, 2_000_000_000),
+    ParamSpec('method', 'refined', 'identification method', choices=METHODS),
+    ParamSpec('na', 15, 'ARX order of A[q] (paper pipeline, also the refined start)', 2, 60),
+    ParamSpec('nb', 15, 'ARX order of B[q] (paper pipeline, also the refined start)', 2, 60),
+    ParamSpec('queue_size', 16, 'windows waiting for a fit at most (oldest dropped beyond)',
+              1, 10_000, read_only=True),
+    ParamSpec('fit_processes', 1, 'child processes for the fits (0: fit on a thread)', 0, 16,
+              read_only=True),
+    ParamSpec('qos_depth', 1000, 'input queue depth per topic (0: keep all)', 0, 1_000_000,
+              read_only=True),
+    ParamSpec('warnings_per_second', 20, 'most warning lines a second (the rest summed up)',
+              1, 10_000),
+    ParamSpec('stats_period', 30.0, 'log counters every this many seconds (0: never)',
+              0.0, 1e6),
+)
+_WINDOWER_KEYS = ('window_size', 'samples', 'max_samples', 'pair_timeout', 'time_jump',
+                  'max_pending', 'max_windows', 'max_buffered_samples')
+
+
+def _validate(values: dict[str, Any]) -> str | None:
+    if values['samples'] and values['samples'] > values['max_samples']:
+        return 'samples must be 0 or <= max_samples'
+    if values['max_buffered_samples'] < 2 * values['window_size'] * 32:
+        return 'max_buffered_samples cannot hold one window'
+    if values['samples'] and values['samples'] <= values['na'] + values['nb']:
+        return 'records must be longer than na + nb samples'
+    return None
+
+
+class SysidNode(Node):
+    """The sysid node (see the module docs)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('sysid', **kwargs)
+        self.log = logger(self)
+        self.params = ParameterSet(self, PARAMETERS, validate=_validate, apply=self._apply)
+        v = self.params.values
+        self.results = self.create_publisher(ModalParameters, RESULT_TOPIC, results_qos())
+        self.task = SysidTask(self._fit_function(v), self._publish,
+                              warn=self.log.warning, windower=self._windower_args(v),
+                              queue_size=v['queue_size'], processes=v['fit_processes'],
+                              warnings_per_second=v['warnings_per_second'])
+        qos = moves_qos(v['qos_depth'])
+        self.create_subscription(MoveSamples, CURRENT_TOPIC,
+                                 functools.partial(self._on_half, signal='current'), qos)
+        self.create_subscription(MoveSamples, ENCODER_TOPIC,
+                                 functools.partial(self._on_half, signal='encoder'), qos)
+        self.create_timer(0.25, self.task.tick)
+        self._stats_timer = None
+        if v['stats_period'] > 0:
+            self._stats_timer = self.create_timer(v['stats_period'], self._log_stats)
+        self.log.info(
+            f'identifying windows of {v["window_size"]} moves ({v["method"]}) from '
+            f'{self.resolve_topic_name(CURRENT_TOPIC)} and '
+            f'{self.resolve_topic_name(ENCODER_TOPIC)} -> '
+            f'{self.resolve_topic_name(RESULT_TOPIC)}')
+
+    @staticmethod
+    def _windower_args(values: dict[str, Any]) -> dict[str, Any]:
+        return {k: values[k] for k in _WINDOWER_KEYS}
+
+    @staticmethod
+    def _fit_function(values: dict[str, Any]) -> functools.partial[Any]:
+        return functools.partial(fit_window, method=values['method'],
+                                 options={'na': values['na'], 'nb': values['nb']})
+
+    def _apply(self, values: dict[str, Any], changed: set[str]) -> None:
+        if changed & set(_WINDOWER_KEYS):
+            from galvo_sysid.pairing import MoveWindower
+
+            old = self.task.windower
+            self.task.windower = MoveWindower(**self._windower_args(values))
+            held = sum(old.fill_levels().values())
+            self.log.warning(
+                f'window settings changed ({", ".join(sorted(changed))}): {held} buffered '
+                f'moves and {old.pending} unpaired halves discarded')
+        if changed & {'method', 'na', 'nb'}:
+            self.task.fitter.set_fit(self._fit_function(values))
+            self.log.info(f'identification now {values["method"]} '
+                                   f'(na={values["na"]}, nb={values["nb"]})')
+
+    def _on_half(self, msg: MoveSamples, *, signal: str) -> None:
+        try:
+            half = move_half_from_msg(msg, signal=signal)
+        except GalvoSysidError as err:
+            self.task.set_aside(str(err))
+            return
+        self.task.add(half)
+
+    def _publish(self, outcome: FitOutcome) -> None:
+        if outcome.result is None:
+            return
+        w = outcome.window
+        msg = fill(ModalParameters(),
+                   modal_parameters_fields(outcome.result, window_index=w.index))
+        fill_header(msg, stamp=w.last_stamp)
+        self.results.publish(msg)
+        r = outcome.result
+        self.log.info(
+            f'window {w.index}: {w.target_angle:+g} deg, {w.moves} moves, fit '
+            f'{r.fit_percent:.1f} %, omega = '
+            f'{", ".join(f"{x:.5g}" for x in r.natural_frequencies)} rad/s '
+            f'(queued {1e3 * outcome.queued:.0f} ms, fit {1e3 * outcome.fit_time:.0f} ms)')
+
+    def _log_stats(self) -> None:
+        s = self.task.stats()
+        self.log.info('counters: ' + ', '.join(f'{k}={v}' for k, v in s.items()))
+
+    def close(self) -> None:
+        """Stop the fit workers (queued windows are finished for up to 2 s)."""
+        self.task.close(timeout=2.0)
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Entry point of ``sysid``."""
+    return run_node(SysidNode, args=sys.argv if args is None else args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
