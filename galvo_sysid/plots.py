@@ -3,7 +3,8 @@
 - :func:`plot_bode`: identified ``P_mech`` of each window (and the pooled estimate) against
   the reference model, magnitude and phase, like the paper's Fig. 10/11.
 - :func:`plot_trends`: each modal parameter's relative deviation from the reference over the
-  windows, with its uncertainty, the drift tolerance band and the verdict's colour.
+  windows, with its uncertainty, the drift tolerance band, and the verdict's colour where
+  that parameter raised it.
 - :func:`identification_figure` / :func:`save_identification_plot`: both on one page, for
   ``galvo-sysid identify --plot FILE``.
 
@@ -118,8 +119,10 @@ def plot_trends(axes: Sequence[Any], windows: Sequence[WindowResult], *,
         msg = f'{len(chosen)} parameters but only {len(axes)} axes'
         raise ConfigurationError(msg)
     x = np.array([w.window_index for w in windows], dtype=float)
-    colors = [LEVEL_COLORS.get(w.drift.level_name, 'k') for w in windows]
     for ax, name in zip(axes, chosen, strict=False):
+        # a point takes its window's verdict colour only if this parameter raised it
+        colors = [LEVEL_COLORS.get(w.drift.level_name, 'k') if name in w.drift.flagged
+                  else LEVEL_COLORS['OK'] for w in windows]
         j = all_names.index(name)
         dev = 100 * np.array([w.drift.relative_deviation[j] for w in windows])
         std = 100 * np.array([w.drift.relative_std[j] for w in windows])
@@ -162,7 +165,7 @@ def identification_figure(found: BagIdentification, *,
         ax.set_xlabel('window', fontsize='small')
     fig.suptitle(f'{found.info.path.name}: {len(found.windows)} window(s), method '
                  f'{found.method}; deviation from reference [%], shaded = drift tolerance, '
-                 f'colour = verdict, hollow = partial')
+                 f'orange/red = flagged WARN/ERROR, hollow = partial window')
     return fig
 
 
