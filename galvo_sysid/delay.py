@@ -235,7 +235,8 @@ class DelayEstimate:
 def estimate_delay(u: ArrayLike, y: ArrayLike, *, sample_period: float, na: int = 15,
                    nb: int = 15, bands: Sequence[tuple[float, float]] | None = None,
                    search: tuple[float, float] | None = None, n_points: int = 200,
-                   reference: ModalModel = REFERENCE_MODEL) -> DelayEstimate:
+                   reference: ModalModel = REFERENCE_MODEL,
+                   max_cost: float = 0.05) -> DelayEstimate:
     """Estimate the equivalent input delay from one pre-processed input/output pair.
 
     The paper's reasoning (Sec. V-A), made a criterion: fit an ARX model to the raw input
@@ -258,9 +259,15 @@ def estimate_delay(u: ArrayLike, y: ArrayLike, *, sample_period: float, na: int 
         search: Delay search interval [s]; default 0 .. 4 T.
         n_points: Frequencies per band.
         reference: Model whose first natural frequency sets the default band.
+        max_cost: Largest acceptable cost (0.05: an RMS residual phase of about 13 deg);
+            above it no delay explains the phase and the estimate is refused.
 
     Returns:
         The estimate with its cost.
+
+    Raises:
+        IdentificationError: The best cost exceeds ``max_cost`` (the data do not look like
+            mechanics behind a delay in ``bands``), or the ARX response is degenerate.
     """
     _check_period(sample_period)
     lo, hi = (0.0, 4.0 * sample_period) if search is None else search
@@ -296,4 +303,8 @@ def estimate_delay(u: ArrayLike, y: ArrayLike, *, sample_period: float, na: int 
     res = minimize_scalar(cost, bounds=(a_, b_), method='bounded',
                           options={'xatol': 1e-4 * sample_period})
     d_best = float(res.x) if res.fun <= costs[i] else float(grid[i])
-    return DelayEstimate(delay=d_best, cost=cost(d_best), n_frequencies=omega.size)
+    best = cost(d_best)
+    if not best <= max_cost:
+        raise IdentificationError(f'no delay in {lo:.3g} .. {hi:.3g} s makes the phase a multiple '
+                                  f'of 180 deg (cost {best:.3g} > {max_cost:.3g})')
+    return DelayEstimate(delay=d_best, cost=best, n_frequencies=omega.size)

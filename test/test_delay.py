@@ -16,7 +16,7 @@ from galvo_sysid.delay import (
     pade_delay_filter,
     paper_delay_filter,
 )
-from galvo_sysid.errors import ConfigurationError, InvalidDataError
+from galvo_sysid.errors import ConfigurationError, IdentificationError, InvalidDataError
 from galvo_sysid.plant import TAU, InputDynamics
 from galvo_sysid.preprocess import average_records
 
@@ -157,6 +157,15 @@ def test_estimate_delay_on_noisy_data(dynamics, truth):
     est = estimate_delay(*average_records(u, y), sample_period=T)
     assert est.delay / T == pytest.approx(truth, abs=0.03)
     assert est.cost < 1e-4
+
+
+def test_estimate_delay_refuses_data_without_a_mechanical_phase():
+    """An integrator's phase is -90 deg: no delay turns it into a multiple of 180 deg."""
+    rng = np.random.default_rng(5)
+    u = rng.standard_normal(2000)
+    y = lfilter([0.0, T], [1.0, -1.0], u)
+    with pytest.raises(IdentificationError, match='multiple of 180'):
+        estimate_delay(u, y, sample_period=T, na=4, nb=4)
 
 
 def test_estimate_delay_bad_configuration():
