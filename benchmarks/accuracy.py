@@ -30,7 +30,6 @@ os.environ.setdefault('OMP_NUM_THREADS', '1')
 import argparse
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -53,27 +52,28 @@ TARGET_POOLED = {'k0': 0.05, 'k1': 0.5, 'k2': 0.5, 'k3': 5, 'omega_1': 0.01, 'om
                  'omega_3': 0.3, 'zeta_1': 1, 'zeta_2': 1, 'zeta_3': 10}
 """Issue 3's targets for the pooled estimate of 19 angles x 100 moves (|err| %)."""
 
-Source = Callable[[float, int, int], tuple[NDArray[np.float64], NDArray[np.float64]]]
+Windows = dict[float, tuple[NDArray[np.float64], NDArray[np.float64]]]
+"""Window (current, encoder) per target angle."""
 
 
-def _source(name: str) -> Source:
-    if name == 'simulator':
-        from galvo_sysid.simulator import simulate_window
+def _bag(source: str, angles: list[float], moves: int, seed: int) -> Windows:
+    """One bag: ``moves`` moves of each angle (forward moves; independent noise per window)."""
+    if source == 'simulator':
+        from galvo_sysid.simulator import GalvoSimulator
 
-        def sim(angle: float, moves: int, seed: int) -> tuple[NDArray[np.float64],
-                                                              NDArray[np.float64]]:
-            cur, enc = simulate_window(angle, moves=moves, seed=seed)
-            return np.asarray(cur, dtype=float), np.asarray(enc, dtype=float)
-
-        return sim
+        sim = GalvoSimulator(seed=seed)
+        cur: dict[float, list[NDArray[np.float64]]] = {a: [] for a in angles}
+        enc: dict[float, list[NDArray[np.float64]]] = {a: [] for a in angles}
+        for move in sim.moves(angles=angles, moves_per_angle=2 * moves, batch=200):
+            if move.target_angle > 0:
+                cur[move.target_angle].append(move.current)
+                enc[move.target_angle].append(move.encoder)
+        return {a: (np.array(cur[a]), np.array(enc[a])) for a in angles}
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
     from openloop_data import open_loop_window
 
-    def openloop(angle: float, moves: int, seed: int) -> tuple[NDArray[np.float64],
-                                                               NDArray[np.float64]]:
-        return open_loop_window(angle, moves=moves, seed=seed)
-
-    return openloop
+    return {a: open_loop_window(a, moves=moves, seed=1000 * seed + i)
+            for i, a in enumerate(angles)}
 
 
 def _errors(result: IdentificationResult) -> dict[str, float]:
@@ -99,7 +99,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     angles = [a for a in PAPER_ANGLES if not args.quick
               or round(a / PSI, 6) in (0.1, 0.5, 1.0, 3.0, 10.0)]
-    source = _source(args.source)
     methods = ('paper-A', 'refined')
     errs: dict[str, dict[str, list[float]]] = {m: {n: [] for n in NAMES} for m in methods}
     errs_1psi: dict[str, dict[str, list[float]]] = {m: {n: [] for n in NAMES} for m in methods}
@@ -110,11 +109,11 @@ def main(argv: list[str] | None = None) -> int:
     pooled: list[IdentificationResult] = []
     t_sim = 0.0
     for seed in args.seeds:
+        t0 = time.perf_counter()
+        bag = _bag(args.source, angles, args.moves, seed)
+        t_sim += time.perf_counter() - t0
         per_seed: list[IdentificationResult] = []
-        for angle in angles:
-            t0 = time.perf_counter()
-            cur, enc = source(angle, args.moves, seed)
-            t_sim += time.perf_counter() - t0
+        for angle, (cur, enc) in bag.items():
             for method in methods:
                 t0 = time.perf_counter()
                 try:

@@ -126,8 +126,28 @@ def _split_delay(computation_delay: int, dead_time: float, sample_period: float)
     return whole, float(frac)
 
 
+def _powers(omega: Floats, zeta: Floats, n: int,
+            sample_period: float) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """Continuous poles p_j of the modes and E[j, k] = exp(p_j T k), k = 0 .. n-1."""
+    w = np.asarray(omega, dtype=float)
+    z = np.asarray(zeta, dtype=float)
+    p = -z * w + 1j * w * np.sqrt(np.maximum(1.0 - z * z, 1e-12))
+    # cumulative product of the discrete pole: far cheaper than n complex exponentials and
+    # accurate to ~n eps
+    e = np.empty((p.size, n), dtype=np.complex128)
+    e[:, 0] = 1.0
+    e[:, 1:] = np.exp(p * sample_period)[:, None]
+    np.cumprod(e, axis=1, out=e)
+    return p, e
+
+
 class _Regressors:
-    """Filtered exact-ZOH responses of the unit modes to a fixed input (records (..., N))."""
+    """Filtered exact-ZOH responses of the unit modes to a fixed input (records (..., N)).
+
+    Every block is a sum of first-order pole terms whose impulse responses are closed-form
+    powers of the discrete poles; they are convolved with the filtered input by FFT, all
+    blocks in one batch.
+    """
 
     def __init__(self, u: NDArray[np.float64], *, sample_period: float, delay: int,
                  fraction: float) -> None:
@@ -136,59 +156,94 @@ class _Regressors:
         self.t = sample_period
         self.delay = delay
         self.fraction = fraction
-        self.u0 = u - u[..., :1]
+        self.n = u.shape[-1]
+        self.nfft = 1 << (2 * self.n - 1).bit_length()
+        u0 = u - u[..., :1]
         self.uf = second_difference(u)
-        # Fixed FIR parts of the rigid body (double and single integrator, see _rigid).
+        self.uf_hat = np.fft.rfft(self.uf, self.nfft, axis=-1)
+        # Fixed FIR parts of the rigid body (double and single integrator, see rigid()).
         f = fraction
         t = sample_period
         pad = [0.0] * delay
         self.rigid_double = lfilter([*pad, 0.0, t * t * (1 - f) ** 2 / 2,
                                      t * t * (0.5 + f - f * f), t * t * f * f / 2],
-                                    [1.0], self.u0, axis=-1)
+                                    [1.0], u0, axis=-1)
         self.rigid_single = lfilter([*pad, 0.0, t * (1 - f), t * (2 * f - 1), -t * f], [1.0],
-                                    self.u0, axis=-1)
+                                    u0, axis=-1)
 
-    def lag_state(self, lag: float) -> tuple[NDArray[np.float64], float]:
-        """Response of the lag pole 1/(s + 1/T_l) to the filtered input, and its z pole."""
+    def convolve(self, h: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Responses to the filtered input of the impulse responses h (m, N): (m,) + u.shape."""
+        hh = np.fft.rfft(h, self.nfft, axis=-1)
+        prod = hh * self.uf_hat if self.uf_hat.ndim == 1 else hh[:, None, :] * self.uf_hat[None]
+        return np.asarray(np.fft.irfft(prod, self.nfft, axis=-1)[..., : self.n],
+                          dtype=np.float64)
+
+    def _pulse(self, p: NDArray[np.complex128]) -> tuple[NDArray[np.complex128],
+                                                          NDArray[np.complex128]]:
+        """Vectorised :func:`_pulse_numerator` for nonzero poles p."""
+        t, f = self.t, self.fraction
+        lam = np.exp(p * t)
+        e1 = np.exp(p * (1.0 - f) * t)
+        g1 = (e1 - 1.0) / p
+        return g1, e1 * (lam - 1.0) / p - lam * g1
+
+    def _shifted(self, a1: NDArray[np.complex128], a2: NDArray[np.complex128],
+                 e: NDArray[np.complex128]) -> NDArray[np.float64]:
+        """Real impulse responses 2 Re(a1 E[k-1-d] + a2 E[k-2-d]) (zero before)."""
+        d, n = self.delay, self.n
+        h = np.zeros(e.shape)
+        if d + 1 < n:
+            h[:, d + 1:] = 2.0 * (a1[:, None] * e[:, : n - d - 1]).real
+        if d + 2 < n:
+            h[:, d + 2:] += 2.0 * (a2[:, None] * e[:, : n - d - 2]).real
+        return h
+
+    def lag_impulse(self, lag: float) -> NDArray[np.float64]:
+        """Impulse response of the lag pole term 1/(s + 1/T_l) (zeros without lag)."""
+        h = np.zeros(self.n)
         if lag <= 0:
-            return np.zeros_like(self.uf), 0.0
-        p = -1.0 / lag
-        g1, g2 = _pulse_numerator(p, self.fraction, self.t)
-        lam_a = math.exp(p * self.t)
-        x = lfilter([0.0] * self.delay + [0.0, g1.real, g2.real], [1.0, -lam_a], self.uf,
-                    axis=-1)
-        return np.asarray(x, dtype=np.float64), lam_a
+            return h
+        lam = math.exp(-self.t / lag)
+        g1, g2 = _pulse_numerator(-1.0 / lag, self.fraction, self.t)
+        powers = lam ** np.arange(self.n - self.delay - 1, dtype=float)
+        d = self.delay
+        if d + 1 < self.n:
+            h[d + 1:] = g1.real * powers
+        if d + 2 < self.n:
+            h[d + 2:] += g2.real * powers[:-1]
+        return h
+
+    def mode_impulses(self, omega: Floats, zeta: Floats, lag: float,
+                      e: NDArray[np.complex128] | None = None,
+                      h_lag: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+        """Impulse responses (m, N) of 1/((1 + s T_l)(s^2 + 2 zeta omega s + omega^2))."""
+        w = np.asarray(omega, dtype=float)
+        z = np.asarray(zeta, dtype=float)
+        p, e_all = _powers(w, z, self.n, self.t) if e is None else (
+            -z * w + 1j * w * np.sqrt(np.maximum(1.0 - z * z, 1e-12)), e)
+        wd = p.imag
+        c = 1.0 / ((1.0 + p * lag) * 2j * wd)  # residue at p
+        g1, g2 = self._pulse(p)
+        h = self._shifted(c * g1, c * g2, e_all)
+        if lag > 0:
+            c_a = lag / (1.0 - 2 * z * w * lag + (w * lag) ** 2)  # residue at -1/T_l
+            hl = self.lag_impulse(lag) if h_lag is None else h_lag
+            h += c_a[:, None] * hl[None, :]
+        return h
 
     def rigid(self, lag: float, x_lag: NDArray[np.float64]) -> NDArray[np.float64]:
         """1/(s^2 (1 + s T_l)) = 1/s^2 - T_l/s + T_l/(s + 1/T_l), filtered."""
         return np.asarray(self.rigid_double - lag * self.rigid_single + lag * x_lag,
                           dtype=np.float64)
 
-    def mode(self, omega: float, zeta: float, lag: float,
-             x_lag: NDArray[np.float64]) -> NDArray[np.float64]:
-        """1/((1 + s T_l)(s^2 + 2 zeta omega s + omega^2)), filtered."""
-        wd = omega * math.sqrt(max(1.0 - zeta * zeta, 1e-12))
-        p = complex(-zeta * omega, wd)
-        lam = complex(np.exp(p * self.t))
-        c = 1.0 / ((1.0 + p * lag) * 2j * wd)  # residue at p
-        g1, g2 = _pulse_numerator(p, self.fraction, self.t)
-        a1, a2 = c * g1, c * g2
-        lc = lam.conjugate()
-        num = [0.0] * self.delay + [0.0, 2 * a1.real, 2 * (a2 - a1 * lc).real,
-                                    -2 * (a2 * lc).real]
-        out = lfilter(num, [1.0, -2 * lam.real, abs(lam) ** 2], self.uf, axis=-1)
-        if lag > 0:
-            c_a = lag / (1.0 - 2 * zeta * omega * lag + (omega * lag) ** 2)  # residue at -1/T_l
-            out = out + c_a * x_lag
-        return np.asarray(out, dtype=np.float64)
-
-    def all(self, omega: Floats, zeta: Floats,
-            lag: float) -> NDArray[np.float64]:
-        """Rigid body and every mode: shape (1 + n_modes, ...) + u.shape."""
-        x_lag, _ = self.lag_state(lag)
-        cols = [self.rigid(lag, x_lag)]
-        cols += [self.mode(w, z, lag, x_lag) for w, z in zip(omega, zeta, strict=True)]
-        return np.stack(cols)
+    def all(self, omega: Floats, zeta: Floats, lag: float,
+            e: NDArray[np.complex128] | None = None) -> NDArray[np.float64]:
+        """Rigid body and every mode: shape (1 + n_modes,) + u.shape."""
+        h_lag = self.lag_impulse(lag)
+        h = np.concatenate([h_lag[None, :], self.mode_impulses(omega, zeta, lag, e, h_lag)])
+        x = self.convolve(h)
+        x[0] = self.rigid(lag, x[0])
+        return x
 
 
 def modal_regressors(u: ArrayLike, natural_frequencies: Sequence[float],
@@ -227,23 +282,17 @@ def modal_regressors(u: ArrayLike, natural_frequencies: Sequence[float],
     return regs.all(natural_frequencies, damping_ratios, lag_time_constant)
 
 
-def _free_responses(omega: Floats, zeta: Floats, n: int,
-                    sample_period: float) -> NDArray[np.float64]:
-    """Two free-response columns per mode (a basis of its initial-condition response).
+def _free_responses(omega: Floats, zeta: Floats, n: int, sample_period: float,
+                    e: NDArray[np.complex128] | None = None) -> NDArray[np.float64]:
+    """Free-response columns of every mode: Re and Im of exp(p_i T k) over rows k >= 2.
 
-    For mode i these are the impulse response of ``1/(1 - 2 Re(l) z^-1 + |l|^2 z^-2)``
-    (l = e^{p_i T}) and the same delayed by one sample, over rows ``_FIRST_ROW .. n-1``:
-    shape (2 n_modes, n - _FIRST_ROW).
+    Shape (2 n_modes, n - _FIRST_ROW); ``e`` is :func:`_powers`' E if already computed.
     """
-    impulses = np.zeros((2, n))
-    impulses[0, 0] = 1.0
-    impulses[1, 1] = 1.0
-    out = np.empty((2 * len(omega), n - _FIRST_ROW))
-    for i, (w, z) in enumerate(zip(omega, zeta, strict=True)):
-        r = math.exp(-z * w * sample_period)
-        c = math.cos(w * math.sqrt(max(1.0 - z * z, 1e-12)) * sample_period)
-        out[2 * i: 2 * i + 2] = lfilter([1.0], [1.0, -2.0 * r * c, r * r], impulses,
-                                        axis=-1)[:, _FIRST_ROW:]
+    if e is None:
+        _, e = _powers(omega, zeta, n, sample_period)
+    out = np.empty((2 * e.shape[0], n - _FIRST_ROW))
+    out[0::2] = e[:, _FIRST_ROW:].real
+    out[1::2] = e[:, _FIRST_ROW:].imag
     return out
 
 
@@ -336,9 +385,12 @@ def model_fit_percent(model: ModalModel, current: ArrayLike, encoder: ArrayLike,
                             computation_delay=computation_delay, dead_time=dead_time)
     forced = np.tensordot(np.array([model.k0, *model.residues]), regs, axes=1)[_FIRST_ROW:]
     yf = second_difference(y_avg)[_FIRST_ROW:]
-    nuisance = np.column_stack([
-        _free_responses(model.natural_frequencies, model.damping_ratios, u_avg.size,
-                        sample_period).T, np.ones(yf.size)])
+    cols = [_free_responses(model.natural_frequencies, model.damping_ratios, u_avg.size,
+                            sample_period).T, np.ones((yf.size, 1))]
+    if lag_time_constant > 0:
+        k = np.arange(yf.size, dtype=float)
+        cols.append(np.exp(-k * sample_period / lag_time_constant)[:, None])
+    nuisance = np.hstack(cols)
     target = yf - forced
     coef = np.linalg.lstsq(nuisance, target, rcond=None)[0]
     return filtered_fit_percent(yf, target - nuisance @ coef)
@@ -356,7 +408,7 @@ class _Problem:
         self.n = u.shape[-1]
         self.k = np.arange(self.n, dtype=float)[_FIRST_ROW:]
         self.yf = second_difference(y)[_FIRST_ROW:]
-        self.n_linear = 1 + n_modes + 2 * n_modes + 1
+        self.n_linear = 1 + n_modes + 2 * n_modes + 2
         self.y_scale = float(np.linalg.norm(self.yf)) or 1.0
         self.n_eval = 0
         self._cache_key: bytes | None = None
@@ -384,13 +436,28 @@ class _Problem:
     # -- regressors ------------------------------------------------------------------------
     def columns(self, omega: Floats, zeta: Floats,
                 lag: float) -> NDArray[np.float64]:
-        """Regressor matrix (rows, n_linear): rigid, modes, free responses, offset."""
+        """Regressor matrix (rows, n_linear).
+
+        Columns: rigid body, modes, two free-response columns per mode, offset, and the
+        amplifier lag's free response (which, with the others, absorbs any difference between
+        the current before the record and its first sample).
+        """
         n = self.n_modes
+        _, e = _powers(omega, zeta, self.n, self.t)
         phi = np.empty((self.k.size, self.n_linear))
-        phi[:, : 1 + n] = self.regs.all(omega, zeta, lag)[:, _FIRST_ROW:].T
-        phi[:, 1 + n: 1 + 3 * n] = _free_responses(omega, zeta, self.n, self.t).T
-        phi[:, -1] = 1.0
+        phi[:, : 1 + n] = self.regs.all(omega, zeta, lag, e)[:, _FIRST_ROW:].T
+        phi[:, 1 + n: 1 + 3 * n] = _free_responses(omega, zeta, self.n, self.t, e).T
+        phi[:, -2] = 1.0
+        phi[:, -1] = self.lag_free(lag)
         return phi
+
+    def lag_free(self, lag: float) -> NDArray[np.float64]:
+        """Free response of the lag state, lambda_a^(k - 2) (a unit impulse at k = 2 if 0)."""
+        if lag <= 0:
+            out = np.zeros(self.k.size)
+            out[0] = 1.0
+            return out
+        return np.asarray(np.exp(-(self.k - _FIRST_ROW) * (self.t / lag)), dtype=np.float64)
 
     # -- linear solve ----------------------------------------------------------------------
     def factor(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
@@ -424,24 +491,23 @@ class _Problem:
         n = self.n_modes
         omega, zeta, lag = self.unpack(x)
         h = 1e-6
-        x_lag, _ = self.regs.lag_state(lag)
+        # all 2 n single-mode perturbations in one batch: omega_i e^h, then zeta_i e^h
+        w_p = np.concatenate([omega * math.exp(h), omega])
+        z_p = np.concatenate([zeta, zeta * math.exp(h)])
+        _, e = _powers(w_p, z_p, self.n, self.t)
+        forced = self.regs.convolve(self.regs.mode_impulses(w_p, z_p, lag, e))[:, _FIRST_ROW:]
+        free = _free_responses(w_p, z_p, self.n, self.t, e)
         out: list[tuple[NDArray[np.intp], NDArray[np.float64]]] = []
-        for which in ('omega', 'zeta'):
-            for i in range(n):
-                w, z = float(omega[i]), float(zeta[i])
-                if which == 'omega':
-                    w *= math.exp(h)
-                else:
-                    z *= math.exp(h)
-                idx = np.array([1 + i, 1 + n + 2 * i, 2 + n + 2 * i])
-                new = np.empty((self.k.size, 3))
-                new[:, 0] = self.regs.mode(w, z, lag, x_lag)[_FIRST_ROW:]
-                new[:, 1:] = _free_responses([w], [z], self.n, self.t).T
-                out.append((idx, (new - phi[:, idx]) / h))
+        for j in range(2 * n):
+            i = j % n
+            idx = np.array([1 + i, 1 + n + 2 * i, 2 + n + 2 * i])
+            new = np.column_stack([forced[j], free[2 * j], free[2 * j + 1]])
+            out.append((idx, (new - phi[:, idx]) / h))
         if self.fixed_lag is None:
             step = h * self.t
-            idx = np.arange(1 + n)
-            new = self.regs.all(omega, zeta, lag + step)[:, _FIRST_ROW:].T
+            idx = np.array([*range(1 + n), self.n_linear - 1])
+            new = np.column_stack([self.regs.all(omega, zeta, lag + step)[:, _FIRST_ROW:].T,
+                                   self.lag_free(lag + step)])
             out.append((idx, (new - phi[:, idx]) / (step / self.t)))
         return out
 
@@ -460,10 +526,12 @@ class _Problem:
 
     def scan_mode(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
                   lag: float, grid: NDArray[np.float64], zeta_scan: float) -> float:
-        """Frequency on ``grid`` minimising the cost with mode i at ``zeta_scan``, others fixed.
+        """Best frequency for mode i: ``omega[i]`` (at ``zeta[i]``) or a ``grid`` point.
 
-        The other columns are projected out once; each candidate then costs one filter and a
-        3-column least-squares solve.
+        The grid points are tried at the damping ratio ``zeta_scan``, the other modes fixed.
+        The other columns are projected out once; the candidates' columns are computed in one
+        batch, each then costs a 3-column least-squares solve. The current value wins unless a
+        grid point fits better.
         """
         n = self.n_modes
         phi = self.columns(omega, zeta, lag)
@@ -473,22 +541,22 @@ class _Problem:
         scale[scale == 0] = 1.0
         q, _ = qr(others / scale, mode='economic', check_finite=False)
         r_o = self.yf - q @ (q.T @ self.yf)
-        x_lag, _ = self.regs.lag_state(lag)
-        best_w, best_gain = float(omega[i]), -1.0
-        cand = np.empty((self.k.size, 3))
-        for w in grid:
-            cand[:, 0] = self.regs.mode(float(w), zeta_scan, lag, x_lag)[_FIRST_ROW:]
-            cand[:, 1:] = _free_responses([w], [zeta_scan], self.n, self.t).T
-            c_o = cand - q @ (q.T @ cand)
-            gram = c_o.T @ c_o
-            rhs = c_o.T @ r_o
-            try:
-                gain = float(rhs @ np.linalg.solve(gram, rhs))
-            except np.linalg.LinAlgError:
-                continue
-            if gain > best_gain:
-                best_w, best_gain = float(w), gain
-        return best_w
+        w_c = np.concatenate([[omega[i]], grid])
+        z_c = np.concatenate([[zeta[i]], np.full(grid.size, zeta_scan)])
+        _, e = _powers(w_c, z_c, self.n, self.t)
+        forced = self.regs.convolve(self.regs.mode_impulses(w_c, z_c, lag, e))[:, _FIRST_ROW:]
+        free = _free_responses(w_c, z_c, self.n, self.t, e)
+        cand = np.stack([forced, free[0::2], free[1::2]], axis=-1)  # (m, rows, 3)
+        c_o = cand - q @ (q.T @ cand)
+        gram = np.swapaxes(c_o, 1, 2) @ c_o
+        rhs = np.swapaxes(c_o, 1, 2) @ r_o
+        try:
+            sol = np.linalg.solve(gram, rhs[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            return float(omega[i])
+        gain = np.sum(rhs * sol, axis=1)
+        gain[~np.isfinite(gain)] = -1.0
+        return float(w_c[int(np.argmax(gain))])
 
 
 def _edge_mode(params: tuple[NDArray[np.float64], NDArray[np.float64], float],
@@ -628,9 +696,14 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
     omega0, zeta0, lag0 = prob.unpack(x_init)
     omega_scan = omega0.copy()
     if scan_points > 1:
+        # The other modes keep the initial model's damping (inflating a strongly excited mode's
+        # damping would leave a misfit the scanned mode then chases).
+        zeta_init = np.clip(np.array(initial.damping_ratios, dtype=float), 1e-4,
+                            0.5 * _MAX_DAMPING)
         for i, (lo, hi) in enumerate(band_list):
             grid = np.geomspace(lo * 1.01, hi / 1.01, scan_points)
-            omega_scan[i] = prob.scan_mode(i, omega_scan, zeta0, lag0, grid, damping_start)
+            omega_scan[i] = prob.scan_mode(i, omega_scan, zeta_init, lag0, grid,
+                                           damping_start)
     starts = [prob.pack(omega_scan, zeta0, lag0)]
     # Start 2: the initial model itself (if its frequencies differ), then any extra starts.
     if np.max(np.abs(np.log(omega_scan / omega0))) > 0.01:
@@ -680,7 +753,7 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
         sample_period=float(sample_period), parameter_names=tuple(names), covariance=cov,
         covariance_method=method,
         initial_conditions=tuple(float(c) for c in coef[1 + n: 1 + 3 * n]),
-        offset=float(coef[-1]), fit_percent=filtered_fit_percent(prob.yf, resid),
+        offset=float(coef[1 + 3 * n]), fit_percent=filtered_fit_percent(prob.yf, resid),
         cost=float(resid @ resid), n_evaluations=prob.n_eval, starts=len(starts),
         unresolved_modes=tuple(i + 1 for i in unresolved))
 
@@ -695,7 +768,7 @@ def _covariance(prob: _Problem, x: NDArray[np.float64], phi: NDArray[np.float64]
     # Jacobian of the filtered model output w.r.t. [k0, k_i, omega_i, zeta_i, (lag), nuisance]
     derivs = prob.column_derivatives(x, phi)
     n_nl = len(derivs)
-    jac = np.empty((phi.shape[0], 1 + n + n_nl + 2 * n + 1))
+    jac = np.empty((phi.shape[0], n_nl + phi.shape[1]))
     jac[:, : 1 + n] = phi[:, : 1 + n]
     phys = np.concatenate([omega, zeta, [prob.t]])  # d x_j -> d physical parameter
     for j, (idx, dphi) in enumerate(derivs):
