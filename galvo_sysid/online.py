@@ -55,6 +55,13 @@ def fit_window(window: Window, *, method: str = 'refined', n_modes: int = 3,
                            **dict(options or {}))
 
 
+def _ignore_sigint() -> None:
+    """Child processes leave Ctrl-C to their parent (which shuts them down)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _warm_up() -> bool:
     """Import the numerics in a child process before the first window arrives."""
     import galvo_sysid.identify  # noqa: F401
@@ -128,7 +135,8 @@ class WindowFitter:
 
     def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
         return concurrent.futures.ProcessPoolExecutor(
-            max_workers=self.processes, mp_context=multiprocessing.get_context('spawn'))
+            max_workers=self.processes, mp_context=multiprocessing.get_context('spawn'),
+            initializer=_ignore_sigint)
 
     def set_fit(self, fit: Callable[[Window], IdentificationResult]) -> None:
         """Use ``fit`` for the windows taken from the queue from now on."""
@@ -167,7 +175,7 @@ class WindowFitter:
         for t in self._threads:
             t.join(max(0.0, end - time.monotonic()))
         if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool.shutdown(wait=True, cancel_futures=True)
 
     def _run(self) -> None:
         while True:

@@ -120,7 +120,7 @@ class PlantChanges:
             sim.set_plant(PlantSpec(model=self._base.model, dynamics=self._base.dynamics,
                                     effects=effects))
             active = effects.to_list()
-            done.append(f'effects now {json.dumps(active) if active else "none"}')
+            done.append(f'plant effects: {json.dumps(active) if active else "none"}')
         if changed & {'drift.parameter', 'drift.rate', 'drift.unit', 'step.parameter',
                       'step.factor', 'step.at_move'}:
             sim.clear_changes()
