@@ -1,0 +1,92 @@
+"""Offline identification speed: ``galvo-sysid identify`` on a bag vs the scanner's real time.
+
+The target (issue 5): a bag of the paper's 19 angles x 200 moves (3,800 moves, about 23 s of
+scanner time, 38 windows of 100 moves) identified at least 10x faster than real time, with the
+process start included. Each run is a fresh ``galvo-sysid identify BAG --json`` process, timed
+by wall clock (median of ``--repeat`` runs). Also printed: how the time grows with the number
+of windows (bags of 1, 2, 5, 10 and 19 angles) and the process start alone (a bag too short
+for any window).
+
+Usage: ``.venv/bin/python benchmarks/offline_speed.py [--repeat 3] [--jobs N]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from galvo_sysid.plant import PAPER_ANGLES
+from galvo_sysid.simtools import simulate_bag
+
+CLI = str(Path(sys.executable).parent / 'galvo-sysid')
+
+
+def timed_identify(bag: Path, *, repeat: int, jobs: int | None) -> tuple[float, dict]:
+    """Median wall time of a fresh identify process, and its JSON output."""
+    args = [CLI, 'identify', str(bag), '--json']
+    if jobs is not None:
+        args += ['--jobs', str(jobs)]
+    times = []
+    out: dict = {}
+    for _ in range(repeat):
+        start = time.perf_counter()
+        proc = subprocess.run(args, capture_output=True, text=True, check=False)
+        times.append(time.perf_counter() - start)
+        out = json.loads(proc.stdout) if proc.stdout else {}
+    return statistics.median(times), out
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--repeat', type=int, default=3, help='runs per bag (median)')
+    parser.add_argument('--jobs', type=int, default=None,
+                        help='galvo-sysid identify --jobs (default: its own, one per CPU)')
+    args = parser.parse_args()
+    cpus = len(os.sched_getaffinity(0))
+    print(f'machine: {cpus} CPU(s) available, Python {sys.version.split()[0]}; '
+          f'identify --jobs {args.jobs or "default (one per CPU)"}; '
+          f'median of {args.repeat} runs\n')
+    with tempfile.TemporaryDirectory() as tmp:
+        short = Path(tmp) / 'short'
+        simulate_bag(short, angles=[0.3], moves_per_angle=20)
+        start_time, _ = timed_identify(short, repeat=args.repeat, jobs=args.jobs)
+        print(f'process start + imports + reading a 20-move bag (no window): '
+              f'{start_time:.2f} s\n')
+        header = (f'{"angles":>6} {"windows":>7} {"moves":>6} {"scanner [s]":>11} '
+                  f'{"identify [s]":>12} {"x real time":>11} {"s/window":>9}')
+        print(header)
+        print('-' * len(header))
+        rows = []
+        for n_angles in (1, 2, 5, 10, 19):
+            bag = Path(tmp) / f'a{n_angles}'
+            angles = PAPER_ANGLES[::-1][:n_angles] if n_angles < 19 else PAPER_ANGLES
+            summary = simulate_bag(bag, angles=list(angles), moves_per_angle=200, seed=n_angles)
+            wall, out = timed_identify(bag, repeat=args.repeat, jobs=args.jobs)
+            windows = len(out.get('windows', []))
+            failed = len({r['reason'] for r in out.get('rejected', [])})
+            per_window = (wall - start_time) / windows if windows else float('nan')
+            rows.append((n_angles, windows, wall))
+            note = f'  ({failed} window(s) not identified)' if failed else ''
+            print(f'{n_angles:>6} {windows:>7} {summary.moves:>6} {summary.scanner_time:>11.2f} '
+                  f'{wall:>12.2f} {summary.scanner_time / wall:>11.1f} {per_window:>9.3f}'
+                  f'{note}')
+        (_, w0, t0), (_, w1, t1) = rows[0], rows[-1]
+        slope = (t1 - t0) / (w1 - w0)
+        print(f'\ntime grows linearly with the windows: about {1e3 * slope:.0f} ms per window '
+              f'(wall, with the parallel fits) on top of {t0 - slope * w0:.2f} s fixed cost')
+        full = rows[-1][2]
+        print(f'19 angles x 200 moves: {full:.2f} s for 23.0 s of scanner time = '
+              f'{23.03 / full:.1f}x real time (target: >= 10x)')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
