@@ -199,7 +199,8 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
             it), ``na``, ``nb``, ``solver``, ``max_damping``, ``jackknife_groups``
             (default 10; 0 for no std, reported as nan). Refined: ``lag_time_constant``,
             ``estimate_lag``, ``computation_delay``, ``dead_time``, ``damping_start``,
-            ``extra_starts``, ``scan_points``, ``lag_bounds``, ``resolve_z``, ``max_nfev`` (see
+            ``extra_starts``, ``scan_points``, ``lag_bounds``, ``resolve_z``, ``whiten_order``,
+            ``max_nfev`` (see
             :func:`galvo_sysid.refine.refine_fit`).
 
     Returns:
@@ -229,7 +230,7 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
     paper_keys = {'delay', 'na', 'nb', 'solver', 'max_damping'}
     refine_keys = {'lag_time_constant', 'estimate_lag', 'computation_delay', 'dead_time',
                    'damping_start', 'extra_starts', 'scan_points', 'lag_bounds', 'max_nfev',
-                   'resolve_z'}
+                   'resolve_z', 'whiten_order'}
     groups = int(opts.pop('jackknife_groups', _JACKKNIFE_GROUPS))
     allowed = paper_keys | (refine_keys if method == 'refined' else set())
     unknown = set(opts) - allowed
@@ -272,16 +273,46 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
                          fit_percent=refined.fit_percent, method='refined')
 
 
-def pool_results(results: Sequence[IdentificationResult]) -> IdentificationResult:
+def _pool_parameter(v: NDArray[np.float64], s: NDArray[np.float64], *,
+                    reject: float) -> tuple[float, float]:
+    """Inverse-variance mean and std of one parameter, with outlier rejection."""
+    ok = np.isfinite(s) & (s > 0) & np.isfinite(v)
+    if not np.any(ok):
+        finite = v[np.isfinite(v)]
+        return (float(np.mean(finite)) if finite.size else float('nan')), float('nan')
+    v, s = v[ok], s[ok]
+    w = 1.0 / s**2
+    if reject > 0 and v.size > 2:
+        # weighted median as a robust centre; drop windows far from it in their own std
+        order = np.argsort(v)
+        cum = np.cumsum(w[order])
+        centre = float(v[order][np.searchsorted(cum, 0.5 * cum[-1])])
+        keep = np.abs(v - centre) <= reject * s
+        if np.count_nonzero(keep) >= max(2, v.size // 2):
+            v, s, w = v[keep], s[keep], w[keep]
+    mean = float(np.sum(w * v) / np.sum(w))
+    std = float(1.0 / math.sqrt(float(np.sum(w))))
+    if v.size > 1:
+        chi2 = float(np.sum(w * (v - mean) ** 2))
+        std *= max(1.0, math.sqrt(chi2 / (v.size - 1)))
+    return mean, std
+
+
+def pool_results(results: Sequence[IdentificationResult], *,
+                 reject: float = 5.0) -> IdentificationResult:
     """Combine windows of the same plant: inverse-variance weighted mean per parameter.
 
-    Each parameter's pooled std is the inverse-variance std scaled by the Birge ratio
-    ``sqrt(chi^2 / (n - 1))`` when that exceeds 1 (the windows scatter more than their std
-    say, e.g. an angle-dependent bias). Windows without a finite positive std for a parameter
-    are left out of that parameter (plain mean if none has one).
+    Per parameter: windows farther than ``reject`` of their own std from the weighted median
+    are left out (a window whose weak mode locked onto a noise peak reports a small std far
+    from the others); the rest are averaged with weights 1/std^2. The pooled std is the
+    inverse-variance std scaled by the Birge ratio ``sqrt(chi^2 / (n - 1))`` when that exceeds
+    1 (the windows scatter more than their std say, e.g. an angle-dependent bias). Windows
+    without a finite positive std for a parameter are left out of it (plain mean and nan std
+    if none has one).
 
     Args:
         results: Windows of one method and one number of modes.
+        reject: Outlier threshold in std (0: keep every window).
 
     Returns:
         The pooled result: ``target_angle`` is the common angle or nan, ``moves`` the total,
@@ -306,20 +337,7 @@ def pool_results(results: Sequence[IdentificationResult]) -> IdentificationResul
     for name in values[0]:
         v = np.array([p[name] for p in values])
         s = np.array([p[name] for p in stds])
-        ok = np.isfinite(s) & (s > 0) & np.isfinite(v)
-        if not np.any(ok):
-            pooled[name] = float(np.mean(v))
-            pooled_std[name] = float('nan')
-            continue
-        w = 1.0 / s[ok] ** 2
-        mean = float(np.sum(w * v[ok]) / np.sum(w))
-        std = float(1.0 / math.sqrt(float(np.sum(w))))
-        k = int(np.count_nonzero(ok))
-        if k > 1:
-            chi2 = float(np.sum(w * (v[ok] - mean) ** 2))
-            std *= max(1.0, math.sqrt(chi2 / (k - 1)))
-        pooled[name] = mean
-        pooled_std[name] = std
+        pooled[name], pooled_std[name] = _pool_parameter(v, s, reject=reject)
     angles = {r.target_angle for r in items}
     angle = items[0].target_angle if len(angles) == 1 else float('nan')
     moves = int(sum(r.moves for r in items))

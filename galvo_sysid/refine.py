@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.linalg import LinAlgError, cholesky, qr, solve_triangular
+from scipy.linalg import LinAlgError, cholesky, qr, solve_toeplitz, solve_triangular
 from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
@@ -60,6 +60,7 @@ __all__ = [
     'DEFAULT_LAG_BOUNDS',
     'DEFAULT_RESOLVE_Z',
     'DEFAULT_SCAN_POINTS',
+    'DEFAULT_WHITEN_ORDER',
     'RefinedFit',
     'filtered_fit_percent',
     'modal_regressors',
@@ -76,6 +77,9 @@ DEFAULT_LAG_BOUNDS = (0.0, 3.0)
 
 DEFAULT_SCAN_POINTS = 24
 """Frequencies per band scanned for the first starting point."""
+
+DEFAULT_WHITEN_ORDER = 8
+"""Order of the AR model of the per-move noise used to prewhiten the second stage."""
 
 DEFAULT_RESOLVE_Z = 3.0
 """Significance |k_i| / std(k_i) below which a mode counts as not resolved."""
@@ -407,12 +411,26 @@ class _Problem:
         self.regs = _Regressors(u, sample_period=sample_period, delay=delay, fraction=fraction)
         self.n = u.shape[-1]
         self.k = np.arange(self.n, dtype=float)[_FIRST_ROW:]
-        self.yf = second_difference(y)[_FIRST_ROW:]
+        self.yf_raw = second_difference(y)[_FIRST_ROW:]
         self.n_linear = 1 + n_modes + 2 * n_modes + 2
-        self.y_scale = float(np.linalg.norm(self.yf)) or 1.0
         self.n_eval = 0
+        self.set_whitening(None)
+
+    def set_whitening(self, a: NDArray[np.float64] | None) -> None:
+        """Use the FIR prewhitening filter ``a`` (a[0] = 1) on data and columns, or none."""
+        self.whiten = a
+        self.yf = self.apply_whitening(self.yf_raw)
+        self.y_scale = float(np.linalg.norm(self.yf)) or 1.0
         self._cache_key: bytes | None = None
         self._cache: tuple[NDArray[np.float64], ...] = ()
+
+    def apply_whitening(self, arr: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
+        """Filter ``arr`` along the row ``axis`` and drop the filter's start-up rows."""
+        if self.whiten is None:
+            return arr
+        out = lfilter(self.whiten, [1.0], arr, axis=axis)
+        return np.asarray(np.delete(out, np.s_[: self.whiten.size - 1], axis=axis),
+                          dtype=np.float64)
 
     # -- parameters ----------------------------------------------------------------------
     @property
@@ -434,8 +452,8 @@ class _Problem:
         return np.concatenate(parts)
 
     # -- regressors ------------------------------------------------------------------------
-    def columns(self, omega: Floats, zeta: Floats,
-                lag: float) -> NDArray[np.float64]:
+    def columns(self, omega: Floats, zeta: Floats, lag: float, *,
+                whitened: bool = True) -> NDArray[np.float64]:
         """Regressor matrix (rows, n_linear).
 
         Columns: rigid body, modes, two free-response columns per mode, offset, and the
@@ -449,7 +467,7 @@ class _Problem:
         phi[:, 1 + n: 1 + 3 * n] = _free_responses(omega, zeta, self.n, self.t, e).T
         phi[:, -2] = 1.0
         phi[:, -1] = self.lag_free(lag)
-        return phi
+        return self.apply_whitening(phi) if whitened else phi
 
     def lag_free(self, lag: float) -> NDArray[np.float64]:
         """Free response of the lag state, lambda_a^(k - 2) (a unit impulse at k = 2 if 0)."""
@@ -501,13 +519,15 @@ class _Problem:
         for j in range(2 * n):
             i = j % n
             idx = np.array([1 + i, 1 + n + 2 * i, 2 + n + 2 * i])
-            new = np.column_stack([forced[j], free[2 * j], free[2 * j + 1]])
+            new = self.apply_whitening(np.column_stack([forced[j], free[2 * j],
+                                                        free[2 * j + 1]]))
             out.append((idx, (new - phi[:, idx]) / h))
         if self.fixed_lag is None:
             step = h * self.t
             idx = np.array([*range(1 + n), self.n_linear - 1])
-            new = np.column_stack([self.regs.all(omega, zeta, lag + step)[:, _FIRST_ROW:].T,
-                                   self.lag_free(lag + step)])
+            new = self.apply_whitening(np.column_stack([
+                self.regs.all(omega, zeta, lag + step)[:, _FIRST_ROW:].T,
+                self.lag_free(lag + step)]))
             out.append((idx, (new - phi[:, idx]) / (step / self.t)))
         return out
 
@@ -546,7 +566,8 @@ class _Problem:
         _, e = _powers(w_c, z_c, self.n, self.t)
         forced = self.regs.convolve(self.regs.mode_impulses(w_c, z_c, lag, e))[:, _FIRST_ROW:]
         free = _free_responses(w_c, z_c, self.n, self.t, e)
-        cand = np.stack([forced, free[0::2], free[1::2]], axis=-1)  # (m, rows, 3)
+        cand = self.apply_whitening(np.stack([forced, free[0::2], free[1::2]], axis=-1),
+                                    axis=1)  # (m, rows, 3)
         c_o = cand - q @ (q.T @ cand)
         gram = np.swapaxes(c_o, 1, 2) @ c_o
         rhs = np.swapaxes(c_o, 1, 2) @ r_o
@@ -615,7 +636,7 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
                extra_starts: Sequence[ModalModel] = (),
                lag_bounds: tuple[float, float] = DEFAULT_LAG_BOUNDS,
                scan_points: int = DEFAULT_SCAN_POINTS, resolve_z: float = DEFAULT_RESOLVE_Z,
-               max_nfev: int = 100) -> RefinedFit:
+               whiten_order: int = DEFAULT_WHITEN_ORDER, max_nfev: int = 100) -> RefinedFit:
     """Fit the modal model with exact input dynamics to a window of moves (averaged).
 
     Args:
@@ -639,6 +660,8 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
         resolve_z: A mode whose |k_i| is below ``resolve_z`` times its std counts as not
             resolved (see :attr:`RefinedFit.unresolved_modes`); such a mode may end at a band
             edge without an error.
+        whiten_order: Order of the AR noise model of the second, prewhitened stage
+            (generalised least squares; 0: ordinary least squares only). Needs M > 2 records.
         max_nfev: Iteration limit of each start.
 
     Returns:
@@ -723,8 +746,22 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
     assert best is not None
     _, sol, edge = best
     x = sol.x
+    if whiten_order > 0 and cur.shape[0] > 2:
+        # Stage 2 (generalised least squares): prewhiten data and model by an AR model of the
+        # per-move noise at the stage-1 optimum, and polish from there.
+        coef1 = prob.factor(x)[4]
+        dev = _per_move_deviations(prob, x, coef1, cur, enc)
+        prob.set_whitening(_whitening_filter(dev, whiten_order))
+        try:
+            sol2 = least_squares(prob.residual, x, jac=prob.jacobian, bounds=(lower, upper),
+                                 x_scale='jac', max_nfev=max_nfev, method='trf')
+        except (ValueError, LinAlgError) as exc:
+            raise IdentificationError(f'refined fit failed: {exc}') from exc
+        x = sol2.x
+        edge = _edge_mode(prob.unpack(x), band_list)
     omega, zeta, lag = prob.unpack(x)
-    phi, _, _, _, coef, resid = prob.factor(x)
+    phi, _, _, _, coef, _ = prob.factor(x)
+    resid = prob.yf_raw - prob.columns(omega, zeta, lag, whitened=False) @ coef
     model_out = ModalModel(k0=float(coef[0]), residues=tuple(float(c) for c in coef[1: 1 + n]),
                            natural_frequencies=tuple(float(w) for w in omega),
                            damping_ratios=tuple(float(z) for z in zeta))
@@ -753,9 +790,36 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
         sample_period=float(sample_period), parameter_names=tuple(names), covariance=cov,
         covariance_method=method,
         initial_conditions=tuple(float(c) for c in coef[1 + n: 1 + 3 * n]),
-        offset=float(coef[1 + 3 * n]), fit_percent=filtered_fit_percent(prob.yf, resid),
+        offset=float(coef[1 + 3 * n]), fit_percent=filtered_fit_percent(prob.yf_raw, resid),
         cost=float(resid @ resid), n_evaluations=prob.n_eval, starts=len(starts),
         unresolved_modes=tuple(i + 1 for i in unresolved))
+
+
+def _per_move_deviations(prob: _Problem, x: NDArray[np.float64], coef: NDArray[np.float64],
+                         cur: NDArray[np.float64], enc: NDArray[np.float64]) -> NDArray[
+                             np.float64]:
+    """Each move's filtered residual minus the window mean (unwhitened rows), (M, rows)."""
+    n = prob.n_modes
+    omega, zeta, lag = prob.unpack(x)
+    regs = _Regressors(cur, sample_period=prob.t, delay=prob.regs.delay,
+                       fraction=prob.regs.fraction)
+    forced = np.tensordot(coef[: 1 + n], regs.all(omega, zeta, lag), axes=1)
+    per_move = (second_difference(enc) - forced)[:, _FIRST_ROW:]
+    return np.asarray(per_move - per_move.mean(axis=0), dtype=np.float64)
+
+
+def _whitening_filter(dev: NDArray[np.float64], order: int) -> NDArray[np.float64]:
+    """FIR A(q) = 1 + a_1 q^-1 + .. making the per-move noise ``dev`` white (Yule-Walker)."""
+    n = dev.shape[1]
+    r = np.array([np.sum(dev[:, lag:] * dev[:, : n - lag]) for lag in range(order + 1)])
+    if r[0] <= 0:
+        return np.array([1.0])
+    r = r / r[0] * (1.0 - 1e-9 * np.arange(order + 1) / order)  # slight taper, stays PD
+    try:
+        a = solve_toeplitz(r[:-1], -r[1:])
+    except (ValueError, LinAlgError):
+        return np.array([1.0])
+    return np.concatenate([[1.0], a]) if np.all(np.isfinite(a)) else np.array([1.0])
 
 
 def _covariance(prob: _Problem, x: NDArray[np.float64], phi: NDArray[np.float64],
@@ -764,7 +828,7 @@ def _covariance(prob: _Problem, x: NDArray[np.float64], phi: NDArray[np.float64]
                     NDArray[np.float64], str]:
     """Covariance of [k0, k_i, omega_i, zeta_i, (lag)] (sandwich over the moves if M > 2)."""
     n = prob.n_modes
-    omega, zeta, lag = prob.unpack(x)
+    omega, zeta, _ = prob.unpack(x)
     # Jacobian of the filtered model output w.r.t. [k0, k_i, omega_i, zeta_i, (lag), nuisance]
     derivs = prob.column_derivatives(x, phi)
     n_nl = len(derivs)
@@ -786,11 +850,7 @@ def _covariance(prob: _Problem, x: NDArray[np.float64], phi: NDArray[np.float64]
     a_inv = l_inv.T @ l_inv  # (Js^T Js)^-1
     m = cur.shape[0]
     if m > 2:
-        regs = _Regressors(cur, sample_period=prob.t, delay=prob.regs.delay,
-                           fraction=prob.regs.fraction)
-        forced = np.tensordot(coef[: 1 + n], regs.all(omega, zeta, lag), axes=1)
-        per_move = (second_difference(enc) - forced)[:, _FIRST_ROW:]
-        dev = per_move - per_move.mean(axis=0)
+        dev = prob.apply_whitening(_per_move_deviations(prob, x, coef, cur, enc), axis=1)
         g = dev @ js  # (M, p)
         b = g.T @ g / (m * (m - 1))
         cov_s = a_inv @ b @ a_inv
