@@ -209,6 +209,11 @@ def _add_identify(sub: Any) -> None:
                    help='smallest unfinished window fitted at the end (default: half a window)')
     p.add_argument('--namespace', metavar='NS',
                    help='scanner namespace when the bag holds several (e.g. /left)')
+    p.add_argument('--na', type=_positive(int), default=15, metavar='N',
+                   help='ARX order of A[q] (paper pipeline; start of the refined fit), as the '
+                        'sysid node parameter na')
+    p.add_argument('--nb', type=_positive(int), default=15, metavar='N',
+                   help='ARX order of B[q], as the sysid node parameter nb')
     p.add_argument('--jobs', type=_positive(int), default=None, metavar='N',
                    help='windows fitted in parallel (default: one per CPU); the numbers do '
                         'not depend on it')
@@ -367,11 +372,16 @@ def _angles(items: Sequence[str]) -> list[float]:
 def _cmd_identify(args: argparse.Namespace) -> int:
     from galvo_sysid.offline import identify_bag
 
+    if args.plot:  # say a bad file name before the work, not after
+        from galvo_sysid.plots import check_plot_path
+
+        check_plot_path(args.plot)
     progress = _Progress(sys.stderr, 'identify', enabled=not args.json)
     try:
         found = identify_bag(args.bag, method=args.method, window_size=args.window_size,
                              min_partial=args.min_partial, namespace=args.namespace,
-                             jobs=args.jobs or _cpus(), progress=progress)
+                             na=args.na, nb=args.nb, jobs=args.jobs or _cpus(),
+                             progress=progress)
     finally:
         progress.close()
     if args.json:

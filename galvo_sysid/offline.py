@@ -124,7 +124,7 @@ class BagIdentification:
 def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
                  window_size: int = 100, min_partial: int | None = None,
                  namespace: str | None = None, monitor: DriftMonitor | None = None,
-                 jobs: int = 1,
+                 na: int = 15, nb: int = 15, jobs: int = 1,
                  progress: Callable[[int, int], None] | None = None) -> BagIdentification:
     """Identify every window of moves in a bag (see the module docs for the path taken).
 
@@ -135,6 +135,9 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
         min_partial: Smallest unfinished window identified at the end; default half a window.
         namespace: Scanner namespace when the bag holds several.
         monitor: Drift monitor (default: reference = Table I, default tolerances).
+        na: ARX order of A[q] (paper pipeline, also the refined fit's start), as the sysid
+            node's parameter ``na``.
+        nb: ARX order of B[q], as the sysid node's ``nb``.
         jobs: Windows fitted in parallel by this many forked processes (1: in this process).
             The results do not depend on it: each window's fit is the same function call,
             and the drift monitor still sees the windows in order.
@@ -162,7 +165,8 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
     windower = MoveWindower(window_size=window_size)
     judge = DriftMonitor() if monitor is None else monitor
     rejected: list[dict[str, Any]] = []
-    fit = functools.partial(fit_window, method=method)
+    # exactly the sysid node's fit function (nodes/sysid_node.py: SysidNode._fit_function)
+    fit = functools.partial(fit_window, method=method, options={'na': int(na), 'nb': int(nb)})
     pending: collections.deque[tuple[Window, Future[IdentificationResult] | None]] = \
         collections.deque()
     windows: list[WindowResult] = []

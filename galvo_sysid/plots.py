@@ -33,6 +33,7 @@ if TYPE_CHECKING:
 __all__ = [
     'LEVEL_COLORS',
     'bode_data',
+    'check_plot_path',
     'identification_figure',
     'plot_bode',
     'plot_trends',
@@ -169,16 +170,29 @@ def identification_figure(found: BagIdentification, *,
     return fig
 
 
+def check_plot_path(path: str | os.PathLike[str]) -> Path:
+    """Return ``path`` if it names a writable plot file (.png, .pdf or .svg).
+
+    Raises:
+        ConfigurationError: Unsupported file type or missing directory.
+    """
+    out = Path(path)
+    if out.suffix.lower() not in _FORMATS:
+        msg = f'plot file must end in one of {", ".join(sorted(_FORMATS))}: {out}'
+        raise ConfigurationError(msg)
+    if not out.parent.is_dir():
+        msg = f'directory of the plot file does not exist: {out.parent}'
+        raise ConfigurationError(msg)
+    return out
+
+
 def save_identification_plot(found: BagIdentification, path: str | os.PathLike[str]) -> Path:
     """Write :func:`identification_figure` to ``path`` (.png, .pdf or .svg); return the path.
 
     Raises:
         ConfigurationError: Unsupported file type.
     """
-    out = Path(path)
-    if out.suffix.lower() not in _FORMATS:
-        msg = f'plot file must end in one of {", ".join(sorted(_FORMATS))}: {out}'
-        raise ConfigurationError(msg)
+    out = check_plot_path(path)
     fig = identification_figure(found)
     fig.savefig(out, dpi=110)
     return out

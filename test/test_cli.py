@@ -278,3 +278,42 @@ def test_simulate_bad_options(venv_bin: Path, tmp_path: Path) -> None:
                               'magic:x=1'), 'unknown effect')
     assert run(venv_bin, 'simulate', '--out', tmp_path / 'c', '--angles',
                'zero').returncode == 1
+
+
+def test_bad_plot_name_is_said_before_the_work(venv_bin: Path, sim_bag: Path,
+                                               tmp_path: Path) -> None:
+    proc = run(venv_bin, 'identify', sim_bag, '--plot', tmp_path / 'plot.bmp')
+    assert_one_line_error(proc, 'plot file must end in one of')
+    assert proc.stdout == ''
+    proc = run(venv_bin, 'identify', sim_bag, '--plot', tmp_path / 'no' / 'plot.png')
+    assert_one_line_error(proc, 'does not exist')
+
+
+def test_progress_bar_only_on_a_terminal_and_only_when_slow() -> None:
+    import io
+
+    from galvo_sysid.cli import _Progress
+
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    quiet = io.StringIO()
+    bar = _Progress(quiet, 'identify', enabled=True, delay=0.0)
+    bar(5, 10)
+    assert quiet.getvalue() == ''  # not a terminal
+    tty = Tty()
+    bar = _Progress(tty, 'identify', enabled=True, delay=0.0)
+    bar(10, 10)
+    assert '100 %' in tty.getvalue()
+    assert '(10/10 messages' in tty.getvalue()
+    bar.close()
+    assert tty.getvalue().endswith('\r\033[K')
+    fast = Tty()
+    bar = _Progress(fast, 'identify', enabled=True, delay=60.0)
+    bar(10, 10)
+    bar.close()
+    assert fast.getvalue() == ''  # a short run draws nothing
+    off = Tty()
+    _Progress(off, 'identify', enabled=False, delay=0.0)(1, 2)  # --json
+    assert off.getvalue() == ''
