@@ -445,6 +445,9 @@ class SampledPlant:
         g_new: Full-sample drive of u[k - whole].
         g_d: Full-sample drive of d held over the sample.
         gamma_d: (n, substeps) drive of d held per sub-step.
+        sub_phi: Sub-step transition.
+        sub_g_old: (substeps, n) sub-step drives of u_old.
+        sub_g_new: (substeps, n) sub-step drives of u_new.
     """
 
     continuous: ContinuousPlant
@@ -457,6 +460,9 @@ class SampledPlant:
     g_new: NDArray[np.float64]
     g_d: NDArray[np.float64]
     gamma_d: NDArray[np.float64]
+    sub_phi: NDArray[np.float64]
+    sub_g_old: NDArray[np.float64]
+    sub_g_new: NDArray[np.float64]
 
 
 def expm_balanced(a: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -544,4 +550,5 @@ def sample_plant(spec: PlantSpec, *, sample_period: float = TAU,
     gamma_d = np.stack([rev[j] @ sub_g_d for j in range(substeps)], axis=1)
     return SampledPlant(continuous=cp, sample_period=sample_period, whole=whole, split=frac,
                         substeps=substeps, phi=phi, g_old=g_old, g_new=g_new,
-                        g_d=gamma_d.sum(axis=1), gamma_d=gamma_d)
+                        g_d=gamma_d.sum(axis=1), gamma_d=gamma_d, sub_phi=sub_phi,
+                        sub_g_old=sub_g_old, sub_g_new=sub_g_new)
