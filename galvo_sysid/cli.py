@@ -68,8 +68,16 @@ exit codes: 0 ok, 1 bad input or nothing identified, 2 usage error, 130 interrup
 """
 
 
-class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
-    """Keep the hand-made line breaks of descriptions and show defaults."""
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Keep the hand-made line breaks of descriptions; show defaults that say something."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ''
+        default = action.default
+        if (default is None or default is False or default == [] or default is argparse.SUPPRESS
+                or '%(default)' in text or not action.option_strings):
+            return text
+        return f'{text} (default: %(default)s)'
 
 
 def parse_angle(text: str) -> float:
@@ -195,25 +203,34 @@ def _add_identify(sub: Any) -> None:
             'examples:\n'
             '  galvo-sysid identify bags/nominal\n'
             "  galvo-sysid identify bags/drifting --json | jq '.windows[].drift.level'\n"
-            '  galvo-sysid identify run.mcap --method paper-A --plot bode.png'))
+            '  galvo-sysid identify run.mcap --method paper-A --plot bode.png\n'
+            '  galvo-sysid identify field1 --sysid-params config/sysid.yaml \\\n'
+            '      --watchdog-params config/watchdog.yaml   # as the deployed nodes are set'))
     p.add_argument('bag', help='rosbag2 bag: directory, .mcap or .db3 file')
     p.add_argument('--json', action='store_true', help='print one JSON object on stdout')
-    p.add_argument('--method', choices=('refined', 'paper-A', 'paper-B'), default='refined',
-                   help='identification method')
+    p.add_argument('--method', choices=('refined', 'paper-A', 'paper-B'), default=None,
+                   help="identification method (default: the sysid node's, refined)")
     p.add_argument('--plot', metavar='FILE',
                    help='also write Bode (identified vs reference) and parameter-trend plots '
                         '(.png, .pdf or .svg)')
-    p.add_argument('--window-size', type=_positive(int), default=100, metavar='N',
-                   help='moves per window (as the sysid node parameter window_size)')
+    p.add_argument('--window-size', type=_positive(int), default=None, metavar='N',
+                   help='moves per window (default: the sysid node parameter window_size, '
+                        '100)')
     p.add_argument('--min-partial', type=_positive(int), default=None, metavar='N',
                    help='smallest unfinished window fitted at the end (default: half a window)')
     p.add_argument('--namespace', metavar='NS',
                    help='scanner namespace when the bag holds several (e.g. /left)')
-    p.add_argument('--na', type=_positive(int), default=15, metavar='N',
-                   help='ARX order of A[q] (paper pipeline; start of the refined fit), as the '
-                        'sysid node parameter na')
-    p.add_argument('--nb', type=_positive(int), default=15, metavar='N',
-                   help='ARX order of B[q], as the sysid node parameter nb')
+    p.add_argument('--na', type=_positive(int), default=None, metavar='N',
+                   help='ARX order of A[q] (paper pipeline; start of the refined fit); default: '
+                        'the sysid node parameter na, 15')
+    p.add_argument('--nb', type=_positive(int), default=None, metavar='N',
+                   help='ARX order of B[q]; default: the sysid node parameter nb, 15')
+    p.add_argument('--sysid-params', metavar='YAML',
+                   help="the sysid node's --params-file (e.g. config/sysid.yaml): window "
+                        'and pairing settings, method, na, nb; options given here win')
+    p.add_argument('--watchdog-params', metavar='YAML',
+                   help="the watchdog node's --params-file (e.g. config/watchdog.yaml): "
+                        'reference model and tolerances of the drift verdicts')
     p.add_argument('--jobs', type=_positive(int), default=None, metavar='N',
                    help='windows fitted in parallel (default: one per CPU); the numbers do '
                         'not depend on it')
@@ -370,18 +387,29 @@ def _angles(items: Sequence[str]) -> list[float]:
 
 
 def _cmd_identify(args: argparse.Namespace) -> int:
-    from galvo_sysid.offline import identify_bag
+    from galvo_sysid.offline import identify_bag, load_node_parameters, monitor_from_parameters
 
     if args.plot:  # say a bad file name before the work, not after
         from galvo_sysid.plots import check_plot_path
 
         check_plot_path(args.plot)
+    sysid: dict[str, Any] = {'window_size': 100, 'method': 'refined', 'na': 15, 'nb': 15}
+    if args.sysid_params:
+        sysid.update(load_node_parameters(args.sysid_params, 'sysid'))
+    for name in ('window_size', 'method', 'na', 'nb'):
+        if getattr(args, name) is not None:
+            sysid[name] = getattr(args, name)
+    monitor = None
+    if args.watchdog_params:
+        monitor = monitor_from_parameters(load_node_parameters(args.watchdog_params,
+                                                               'watchdog'))
     progress = _Progress(sys.stderr, 'identify', enabled=not args.json)
     try:
-        found = identify_bag(args.bag, method=args.method, window_size=args.window_size,
+        found = identify_bag(args.bag, method=str(sysid['method']),
+                             window_size=int(sysid['window_size']),
                              min_partial=args.min_partial, namespace=args.namespace,
-                             na=args.na, nb=args.nb, jobs=args.jobs or _cpus(),
-                             progress=progress)
+                             monitor=monitor, na=int(sysid['na']), nb=int(sysid['nb']),
+                             windower=sysid, jobs=args.jobs or _cpus(), progress=progress)
     finally:
         progress.close()
     if args.json:
@@ -396,7 +424,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         print(f'identify: plot written to {path}', file=sys.stderr)
     if not found.windows:
         print(f'identify: no window identified in {args.bag} (need at least '
-              f'{args.min_partial or args.window_size // 2} usable moves of one target angle)',
+              f'{args.min_partial or found.window_size // 2} usable moves of one target angle)',
               file=sys.stderr)
         return 1
     return 0

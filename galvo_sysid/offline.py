@@ -18,7 +18,9 @@ import contextlib
 import functools
 import math
 import multiprocessing
+from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from galvo_sysid.bagio import BagInfo, BagReader, SetAside
@@ -35,14 +37,108 @@ if TYPE_CHECKING:
 
 __all__ = [
     'METHODS',
+    'WINDOWER_PARAMETERS',
     'BagIdentification',
     'WindowResult',
     'identify_bag',
+    'load_node_parameters',
+    'monitor_from_parameters',
     'rejection_to_dict',
 ]
 
 METHODS = ('refined', 'paper-A', 'paper-B')
 """Identification methods ``galvo-sysid identify --method`` accepts."""
+
+WINDOWER_PARAMETERS = ('window_size', 'samples', 'max_samples', 'pair_timeout', 'time_jump',
+                       'max_pending', 'max_windows', 'max_buffered_samples')
+"""sysid node parameters that configure its :class:`~galvo_sysid.pairing.MoveWindower`."""
+
+_MONITOR_PARAMETERS = ('warn_fraction', 'n_sigma', 'trend_windows', 'trend_min_windows',
+                       'trend_sigma', 'trend_fraction', 'min_fit_percent')
+
+
+def _flatten(tree: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, Mapping):
+            out.update(_flatten(value, f'{name}.'))
+        else:
+            out[name] = value
+    return out
+
+
+def load_node_parameters(path: str | os.PathLike[str], node: str) -> dict[str, Any]:
+    """Read a ROS 2 parameter file (``--params-file``) for ``node``; nested names joined by '.'.
+
+    Sections apply as ROS applies them: ``/**`` first, then sections naming the node (with or
+    without namespace, e.g. ``sysid`` or ``/scanner_1/sysid``), later ones winning.
+
+    Raises:
+        ConfigurationError: Unreadable file or no section for the node.
+    """
+    import re
+
+    import yaml  # type: ignore[import-untyped]  # PyYAML ships no stubs here
+
+    class Loader(yaml.SafeLoader):  # type: ignore[misc]
+        """YAML 1.1 reads 3.564e6 as a string; ROS's parameter parser reads a number."""
+
+    Loader.add_implicit_resolver(
+        'tag:yaml.org,2002:float',
+        re.compile(r'^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+$'),
+        list('-+0123456789.'))
+    try:
+        with Path(path).open(encoding='utf-8') as f:
+            doc = yaml.load(f, Loader=Loader)  # a SafeLoader subclass: safe
+    except (OSError, yaml.YAMLError) as err:
+        msg = f'cannot read parameter file {path}: {_one_line(err)}'
+        raise ConfigurationError(msg) from None
+    if not isinstance(doc, Mapping):
+        msg = f'parameter file {path} is not a mapping of node names'
+        raise ConfigurationError(msg)
+    wildcard = [v for k, v in doc.items() if str(k) in {'/**', '**'}]
+    named = [v for k, v in doc.items() if str(k).rstrip('/').split('/')[-1] == node]
+    values: dict[str, Any] = {}
+    for section in (*wildcard, *named):
+        params = section.get('ros__parameters') if isinstance(section, Mapping) else None
+        if isinstance(params, Mapping):
+            values.update(_flatten(params))
+    if not wildcard and not named:
+        msg = f'parameter file {path} has no section for node {node!r} (nor /**)'
+        raise ConfigurationError(msg)
+    return values
+
+
+def monitor_from_parameters(values: Mapping[str, Any]) -> DriftMonitor:
+    """The watchdog node's :class:`~galvo_sysid.drift.DriftMonitor` from its parameters.
+
+    ``values`` are watchdog parameters by name (``reference.k0``, ``tolerances.omega_1``,
+    ``n_sigma``, ...); missing ones take the node's defaults.
+
+    Raises:
+        ConfigurationError: A value is out of range.
+    """
+    from galvo_sysid.drift import DriftMonitor
+    from galvo_sysid.plant import REFERENCE_MODEL, ModalModel
+
+    def floats(name: str, default: tuple[float, ...]) -> tuple[float, ...]:
+        return tuple(float(x) for x in values.get(f'reference.{name}', default))
+
+    try:
+        reference = ModalModel(
+            k0=float(values.get('reference.k0', REFERENCE_MODEL.k0)),
+            residues=floats('residues', REFERENCE_MODEL.residues),
+            natural_frequencies=floats('natural_frequencies',
+                                       REFERENCE_MODEL.natural_frequencies),
+            damping_ratios=floats('damping_ratios', REFERENCE_MODEL.damping_ratios))
+        tolerances = {k.split('.', 1)[1]: float(v) for k, v in values.items()
+                      if k.startswith('tolerances.')}
+        options = {k: values[k] for k in _MONITOR_PARAMETERS if k in values}
+    except (TypeError, ValueError) as err:
+        msg = f'bad watchdog parameter: {err}'
+        raise ConfigurationError(msg) from None
+    return DriftMonitor(reference=reference, tolerances=tolerances, **options)
 
 
 def _clean(x: float) -> float | None:
@@ -124,7 +220,8 @@ class BagIdentification:
 def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
                  window_size: int = 100, min_partial: int | None = None,
                  namespace: str | None = None, monitor: DriftMonitor | None = None,
-                 na: int = 15, nb: int = 15, jobs: int = 1,
+                 na: int = 15, nb: int = 15, windower: Mapping[str, Any] | None = None,
+                 jobs: int = 1,
                  progress: Callable[[int, int], None] | None = None) -> BagIdentification:
     """Identify every window of moves in a bag (see the module docs for the path taken).
 
@@ -138,6 +235,9 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
         na: ARX order of A[q] (paper pipeline, also the refined fit's start), as the sysid
             node's parameter ``na``.
         nb: ARX order of B[q], as the sysid node's ``nb``.
+        windower: Further :class:`~galvo_sysid.pairing.MoveWindower` settings, as the
+            sysid node's parameters of :data:`WINDOWER_PARAMETERS` (``window_size`` here is
+            overridden by the argument).
         jobs: Windows fitted in parallel by this many forked processes (1: in this process).
             The results do not depend on it: each window's fit is the same function call,
             and the drift monitor still sees the windows in order.
@@ -162,7 +262,9 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
     if int(jobs) < 1:
         msg = f'jobs must be >= 1, got {jobs}'
         raise ConfigurationError(msg)
-    windower = MoveWindower(window_size=window_size)
+    settings = {k: v for k, v in dict(windower or {}).items() if k in WINDOWER_PARAMETERS}
+    settings['window_size'] = window_size
+    pairer = MoveWindower(**settings)
     judge = DriftMonitor() if monitor is None else monitor
     rejected: list[dict[str, Any]] = []
     # exactly the sysid node's fit function (nodes/sysid_node.py: SysidNode._fit_function)
@@ -208,14 +310,14 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
                 if isinstance(item, SetAside):
                     rejected.append(item.to_dict())
                 else:
-                    for window in windower.add(item):
+                    for window in pairer.add(item):
                         submit(window)
-                rejected.extend(rejection_to_dict(r) for r in windower.pop_rejections())
+                rejected.extend(rejection_to_dict(r) for r in pairer.pop_rejections())
                 if progress is not None:
                     progress(done, total)
-        for window in windower.flush(min_moves=min_moves):
+        for window in pairer.flush(min_moves=min_moves):
             submit(window)
-        rejected.extend(rejection_to_dict(r) for r in windower.pop_rejections())
+        rejected.extend(rejection_to_dict(r) for r in pairer.pop_rejections())
         drain(0)
     pooled = pool_results([w.result for w in windows]) if windows else None
     return BagIdentification(info=info, method=method, window_size=window_size,

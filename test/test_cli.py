@@ -317,3 +317,21 @@ def test_progress_bar_only_on_a_terminal_and_only_when_slow() -> None:
     off = Tty()
     _Progress(off, 'identify', enabled=False, delay=0.0)(1, 2)  # --json
     assert off.getvalue() == ''
+
+
+def test_node_parameter_files(venv_bin: Path, sim_bag: Path, tmp_path: Path) -> None:
+    sysid = tmp_path / 'sysid.yaml'
+    sysid.write_text('/**:\n  ros__parameters:\n    window_size: 50\n    method: paper-A\n')
+    watchdog = tmp_path / 'watchdog.yaml'
+    watchdog.write_text('/**:\n  ros__parameters:\n    reference: {k0: 3.0e6}\n')
+    proc = run(venv_bin, 'identify', sim_bag, '--json', '--sysid-params', sysid,
+               '--watchdog-params', watchdog, '--method', 'refined')
+    assert proc.returncode == 0, proc.stderr
+    windows = json.loads(proc.stdout)['windows']
+    assert [w['moves'] for w in windows] == [50] * 4
+    assert {w['method'] for w in windows} == {'refined'}  # the option wins over the file
+    for w in windows:  # judged against the file's reference k0 = 3.0e6: +19 %
+        assert w['drift']['deviations']['k0'] == pytest.approx(3.564 / 3.0 - 1, abs=0.01)
+        assert w['drift']['level'] == 'ERROR'
+    assert_one_line_error(run(venv_bin, 'identify', sim_bag, '--sysid-params',
+                              tmp_path / 'missing.yaml'), 'cannot read parameter file')

@@ -78,3 +78,65 @@ def test_paper_method(bag: Path) -> None:
 def test_bad_settings(bag: Path, kwargs: dict, match: str) -> None:
     with pytest.raises(ConfigurationError, match=match):
         identify_bag(bag, **kwargs)
+
+
+def _monitor_settings(monitor: DriftMonitor) -> dict:
+    return {'reference': monitor.reference, 'tolerances': monitor.tolerances,
+            'noise_floor': monitor.noise_floor, 'warn_fraction': monitor.warn_fraction,
+            'n_sigma': monitor.n_sigma, 'trend_windows': monitor.trend_windows,
+            'trend_min_windows': monitor.trend_min_windows, 'trend_sigma': monitor.trend_sigma,
+            'trend_fraction': monitor.trend_fraction,
+            'min_fit_percent': monitor.min_fit_percent}
+
+
+def test_defaults_are_the_nodes_defaults() -> None:
+    from galvo_sysid.nodes import sysid_node, watchdog_node
+    from galvo_sysid.offline import WINDOWER_PARAMETERS, monitor_from_parameters
+
+    watchdog = {p.name: p.default for p in watchdog_node.PARAMETERS}
+    assert _monitor_settings(monitor_from_parameters(watchdog)) == \
+        _monitor_settings(DriftMonitor())  # what identify_bag uses without parameters
+    sysid = {p.name: p.default for p in sysid_node.PARAMETERS}
+    assert (sysid['method'], sysid['na'], sysid['nb'], sysid['window_size']) == \
+        ('refined', 15, 15, 100)
+    defaults = MoveWindower()
+    for name in WINDOWER_PARAMETERS:
+        assert getattr(defaults, name) == sysid[name], name
+
+
+def test_parameter_files(tmp_path: Path, repo: Path) -> None:
+    from galvo_sysid.offline import load_node_parameters, monitor_from_parameters
+
+    values = load_node_parameters(repo / 'config' / 'watchdog.yaml', 'watchdog')
+    monitor = monitor_from_parameters(values)
+    assert monitor.tolerances['omega_1'] == values['tolerances.omega_1']
+    assert monitor.reference.k0 == values['reference.k0']
+    custom = tmp_path / 'p.yaml'
+    custom.write_text('/**:\n  ros__parameters:\n    window_size: 80\n    na: 12\n'
+                      '/left/sysid:\n  ros__parameters:\n    window_size: 50\n'
+                      'watchdog:\n  ros__parameters:\n    tolerances: {k0: 0.5}\n'
+                      '    reference: {k0: 3.0e6}\n')
+    assert load_node_parameters(custom, 'sysid') == {'window_size': 50, 'na': 12}
+    watchdog = load_node_parameters(custom, 'watchdog')
+    assert watchdog['tolerances.k0'] == 0.5
+    monitor = monitor_from_parameters(watchdog)
+    assert monitor.reference.k0 == 3.0e6
+    assert monitor.tolerances['k0'] == 0.5
+    only_named = tmp_path / 'q.yaml'
+    only_named.write_text('driver:\n  ros__parameters: {seed: 1}\n')
+    with pytest.raises(ConfigurationError, match='no section'):
+        load_node_parameters(only_named, 'sysid')
+    broken = tmp_path / 'r.yaml'
+    broken.write_text('a: [\n')
+    with pytest.raises(ConfigurationError, match='cannot read'):
+        load_node_parameters(broken, 'sysid')
+    with pytest.raises(ConfigurationError):
+        monitor_from_parameters({'tolerances.k0': -1.0})
+
+
+def test_windower_settings_reach_the_windower(bag: Path) -> None:
+    found = identify_bag(bag, window_size=50, windower={'window_size': 999, 'samples': 512})
+    assert len(found.windows) == 8
+    strict = identify_bag(bag, windower={'samples': 500})
+    assert strict.windows == ()
+    assert 'expected 500' in strict.rejected[0]['reason']
