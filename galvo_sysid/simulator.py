@@ -340,6 +340,15 @@ class _Loop:
             sat_r[j, :nx] = carry @ (mech[:, None] * drives)
             carry = carry @ sp.sub_phi
         self.sat_r = sat_r
+        # Whole sample beyond the limit (i0, u_old, u_new all beyond it on one side): the sum
+        # of the sub-step corrections, as one matrix on [i0, u_old, u_new].
+        pick = np.zeros((substeps, 3, 3))
+        pick[:, 0, :] = self.sat_coef[0]
+        pick[:, 1, 1] = 1.0
+        pick[:, 2, 2] = 1.0
+        self.sat_r_full = np.einsum('jnk,jkl->nl', sat_r, pick)
+        self.gd_sum_limit = gd.sum(axis=1) * gain * spec.effects.current_limit \
+            if math.isfinite(spec.effects.current_limit) else np.zeros(nz)
         self.limit = spec.effects.current_limit
         self.gain = gain
         # Friction: the rigid-body velocity's row of the update and its gain from d.
@@ -813,6 +822,11 @@ class GalvoSimulator:
         """Correction of the next state for the amplifier's current limit over one sample."""
         limit, gain = loop.limit, loop.gain
         x = np.array([i0, u_old, u_new])
+        if not loop.sat_split.any():
+            if min(i0, u_old, u_new) > limit:
+                return np.asarray(loop.gd_sum_limit - loop.sat_r_full @ x, dtype=np.float64)
+            if max(i0, u_old, u_new) < -limit:
+                return np.asarray(-loop.gd_sum_limit - loop.sat_r_full @ x, dtype=np.float64)
         start, mid, end = loop.sat_coef @ x                   # (substeps,) each
         above = (start > limit) & (mid > limit) & (end > limit) & ~loop.sat_split
         below = (start < -limit) & (mid < -limit) & (end < -limit) & ~loop.sat_split
