@@ -487,15 +487,17 @@ def format_identification(found: BagIdentification) -> str:
         lines.append(f'  input delay {pooled.input_delay * 1e6:.2f} us, '
                      f'amplifier lag {pooled.lag_time_constant * 1e6:.2f} us')
         lines.append('')
-    lines.append(f'rejected: {len(found.rejected)} move(s)/message(s)')
-    shown = found.rejected[:20]
-    for r in shown:
-        mid = '-' if r['move_id'] is None else r['move_id']
-        angle = '' if r['target_angle'] is None else f', {r["target_angle"]:+.3f} deg'
-        stamp = '' if r['stamp'] is None else f', t = {r["stamp"]:.4f} s'
-        lines.append(f'  move {mid}{angle}{stamp}: {r["reason"]}')
-    if len(found.rejected) > len(shown):
-        lines.append(f'  ... and {len(found.rejected) - len(shown)} more (see --json)')
+    lines.append(f'rejected: {len(found.rejected)} move(s) or message(s) set aside')
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for r in found.rejected:
+        groups.setdefault(r['reason'], []).append(r)
+    for reason, items in list(groups.items())[:20]:
+        ids = [str(r['move_id']) for r in items if r['move_id'] is not None]
+        where = f'moves {", ".join(ids[:5])}' + (f', ... {ids[-1]}' if len(ids) > 5 else '') \
+            if len(ids) > 1 else f'move {ids[0]}' if ids else items[0].get('topic', 'message')
+        lines.append(f'  {len(items)} x {reason} ({where})')
+    if len(groups) > 20:
+        lines.append(f'  ... and {len(groups) - 20} more reasons (see --json)')
     return '\n'.join(lines) + '\n'
 
 
