@@ -51,9 +51,10 @@ def main() -> int:
                         help='galvo-sysid identify --jobs (default: its own, one per CPU)')
     args = parser.parse_args()
     cpus = len(os.sched_getaffinity(0))
-    print(f'machine: {cpus} CPU(s) available, Python {sys.version.split()[0]}; '
-          f'identify --jobs {args.jobs or "default (one per CPU)"}; '
-          f'median of {args.repeat} runs\n')
+    load = ', '.join(f'{x:.1f}' for x in os.getloadavg())
+    print(f'machine: {cpus} CPU(s) available (load average {load} at start: other work '
+          f'slows these numbers), Python {sys.version.split()[0]}; identify --jobs '
+          f'{args.jobs or "default (one per CPU)"}; median of {args.repeat} runs\n')
     with tempfile.TemporaryDirectory() as tmp:
         short = Path(tmp) / 'short'
         simulate_bag(short, angles=[0.3], moves_per_angle=20)
