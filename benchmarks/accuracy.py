@@ -38,7 +38,12 @@ from numpy.typing import NDArray
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from galvo_sysid.errors import GalvoSysidError
-from galvo_sysid.identify import IdentificationResult, identify_window, pool_results
+from galvo_sysid.identify import (
+    IdentificationResult,
+    identify_joint,
+    identify_window,
+    pool_results,
+)
 from galvo_sysid.plant import PAPER_ANGLES, PAPER_TABLE_II, PSI, REFERENCE_MODEL, TAU
 
 NAMES = tuple(REFERENCE_MODEL.parameters())
@@ -104,9 +109,12 @@ def main(argv: list[str] | None = None) -> int:
     errs_1psi: dict[str, dict[str, list[float]]] = {m: {n: [] for n in NAMES} for m in methods}
     z_scores: dict[str, dict[str, list[float]]] = {m: {n: [] for n in NAMES} for m in methods}
     times: dict[str, list[float]] = {m: [] for m in methods}
+    cpu: dict[str, list[float]] = {m: [] for m in methods}
     failures: dict[str, int] = dict.fromkeys(methods, 0)
     lags: list[float] = []
     pooled: list[IdentificationResult] = []
+    joint: list[IdentificationResult] = []
+    t_joint: list[float] = []
     t_sim = 0.0
     for seed in args.seeds:
         t0 = time.perf_counter()
@@ -116,6 +124,7 @@ def main(argv: list[str] | None = None) -> int:
         for angle, (cur, enc) in bag.items():
             for method in methods:
                 t0 = time.perf_counter()
+                c0 = time.process_time()
                 try:
                     res = identify_window(cur, enc, sample_period=TAU, method=method,
                                           target_angle=angle,
@@ -126,6 +135,7 @@ def main(argv: list[str] | None = None) -> int:
                     print(f'  seed {seed} angle {angle:g}: {method} failed: {exc}')
                     continue
                 times[method].append(time.perf_counter() - t0)
+                cpu[method].append(time.process_time() - c0)
                 e = _errors(res)
                 std = res.std_by_name()
                 for n in NAMES:
@@ -139,6 +149,13 @@ def main(argv: list[str] | None = None) -> int:
                     lags.append(res.lag_time_constant / TAU)
         if per_seed:
             pooled.append(pool_results(per_seed))
+            t0 = time.process_time()
+            try:
+                joint.append(identify_joint(list(bag.values()), sample_period=TAU,
+                                            initial=pooled[-1]))
+                t_joint.append(time.process_time() - t0)
+            except GalvoSysidError as exc:
+                print(f'  seed {seed}: joint fit failed: {exc}')
     n_win = len(args.seeds) * len(angles)
     print(f'\nsource: {args.source}; seeds {args.seeds}; {len(angles)} angles x {args.moves} '
           f'moves ({n_win} windows; data generation {t_sim:.1f} s)')
@@ -160,11 +177,14 @@ def main(argv: list[str] | None = None) -> int:
                        _pct(errs['paper-A'][n], 90), _pct(errs['refined'][n], 50),
                        _pct(errs['refined'][n], 90)]))
 
-    print('\ntime per window [ms]: median / 90th percentile (identify_window, 1 BLAS thread)')
+    print('\ntime per window [ms] (identify_window, 1 BLAS thread): wall median / p90, '
+          'CPU median / p90')
     for m in methods:
         t = np.array(times[m]) * 1e3
+        c = np.array(cpu[m]) * 1e3
         if t.size:
-            print(f'  {m:8s} {np.median(t):7.1f} {np.percentile(t, 90):7.1f}')
+            print(f'  {m:8s} {np.median(t):7.1f} {np.percentile(t, 90):7.1f}   '
+                  f'{np.median(c):7.1f} {np.percentile(c, 90):7.1f}')
     if lags:
         print(f'\nrefined: estimated amplifier lag / T: median {np.median(lags):.3f}, '
               f'10-90 % {np.percentile(lags, 10):.3f} .. {np.percentile(lags, 90):.3f} '
@@ -181,13 +201,24 @@ def main(argv: list[str] | None = None) -> int:
         print(_row(n, cells))
 
     if pooled:
-        print(f'\npooled refined estimate of {len(angles)} angles x {args.moves} moves, per '
-              f'seed: |error| [%] (median over seeds), reported std [%], target')
-        print('param'.ljust(9) + ''.join(h.rjust(10) for h in ('|err|', 'std', 'target')))
+        print(f'\npooled estimate of {len(angles)} angles x {args.moves} moves per seed '
+              f'(median over seeds): |error| [%] of pool_results (inverse-variance) and of '
+              f'identify_joint (joint fit, its reported std [%]), target')
+        print('param'.ljust(9) + ''.join(h.rjust(10) for h in
+                                         ('pool', 'pool std', 'joint', 'joint std', 'target')))
         for n in NAMES:
-            e = [abs(_errors(p)[n]) for p in pooled]
-            s = [100.0 * p.std_by_name()[n] / abs(TRUTH[n]) for p in pooled]
-            print(_row(n, [float(np.median(e)), float(np.median(s)), TARGET_POOLED[n]]))
+            cells = [float(np.median([abs(_errors(p)[n]) for p in pooled])),
+                     float(np.median([100.0 * p.std_by_name()[n] / abs(TRUTH[n])
+                                      for p in pooled]))]
+            if joint:
+                cells += [float(np.median([abs(_errors(p)[n]) for p in joint])),
+                          float(np.median([100.0 * p.std_by_name()[n] / abs(TRUTH[n])
+                                           for p in joint]))]
+            else:
+                cells += [float('nan'), float('nan')]
+            print(_row(n, [*cells, TARGET_POOLED[n]]))
+        if t_joint:
+            print(f'joint fit CPU time per bag: median {np.median(t_joint):.2f} s')
     return 0
 
 

@@ -11,8 +11,13 @@ delay that was removed or modelled, and a fit measure. Methods:
 - ``'paper-A'`` / ``'paper-B'``: the paper's pipeline (:func:`galvo_sysid.paper.paper_pipeline`,
   method A or B, 1.6 T pure delay); std from a delete-a-group jackknife over the moves.
 
-:func:`pool_results` combines windows of the same plant (inverse-variance weighting per
-parameter, with the std scaled up when the windows scatter more than their std say).
+Pooled estimates of windows of the same plant:
+
+- :func:`pool_results` combines finished results (inverse-variance weighting per parameter,
+  outliers rejected, the std scaled up when the windows scatter more than their std say);
+- :func:`identify_joint` fits one model to the windows' data at once (shared modal parameters,
+  per-window initial conditions): sharper for a weakly excited mode that single windows hardly
+  resolve (the third mode under smooth moves).
 
 ``fit_percent`` is ``100 (1 - ||yf - yf_model|| / ||yf - mean(yf)||)`` on the window's
 averaged output **filtered by (1 - q^-1)^2** (the same for every method): the raw output is
@@ -33,7 +38,7 @@ from galvo_sysid.errors import ConfigurationError, GalvoSysidError, InvalidDataE
 from galvo_sysid.paper import PAPER_DELAY, paper_pipeline
 from galvo_sysid.plant import REFERENCE_MODEL, ModalModel
 from galvo_sysid.preprocess import MIN_ANGLE_SPAN, validate_records
-from galvo_sysid.refine import model_fit_percent, refine_fit
+from galvo_sysid.refine import model_fit_percent, refine_fit, refine_joint
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -43,6 +48,7 @@ if TYPE_CHECKING:
 __all__ = [
     'METHODS',
     'IdentificationResult',
+    'identify_joint',
     'identify_window',
     'pool_results',
 ]
@@ -200,7 +206,7 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
             (default 10; 0 for no std, reported as nan). Refined: ``lag_time_constant``,
             ``estimate_lag``, ``computation_delay``, ``dead_time``, ``damping_start``,
             ``extra_starts``, ``scan_points``, ``lag_bounds``, ``resolve_z``, ``whiten_order``,
-            ``max_nfev`` (see
+            ``adequacy_limit``, ``max_nfev`` (see
             :func:`galvo_sysid.refine.refine_fit`).
 
     Returns:
@@ -230,7 +236,7 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
     paper_keys = {'delay', 'na', 'nb', 'solver', 'max_damping'}
     refine_keys = {'lag_time_constant', 'estimate_lag', 'computation_delay', 'dead_time',
                    'damping_start', 'extra_starts', 'scan_points', 'lag_bounds', 'max_nfev',
-                   'resolve_z', 'whiten_order'}
+                   'resolve_z', 'whiten_order', 'adequacy_limit'}
     groups = int(opts.pop('jackknife_groups', _JACKKNIFE_GROUPS))
     allowed = paper_keys | (refine_keys if method == 'refined' else set())
     unknown = set(opts) - allowed
@@ -350,3 +356,78 @@ def pool_results(results: Sequence[IdentificationResult], *,
                          input_delay=float(np.mean([r.input_delay for r in items])),
                          lag_time_constant=float(np.mean([r.lag_time_constant for r in items])),
                          fit_percent=fit, method=methods.pop())
+
+
+def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float,
+                   initial: IdentificationResult | ModalModel | None = None,
+                   target_angle: float | None = None, n_modes: int = 3,
+                   **options: Any) -> IdentificationResult:
+    """Identify one modal model from several windows of the same plant (joint refined fit).
+
+    Args:
+        windows: ``(current, encoder)`` per window, each (M_w, N_w) raw records as for
+            :func:`identify_window` (M_w >= 3).
+        sample_period: Sampling period [s].
+        initial: Starting model; default: :func:`pool_results` of :func:`identify_window`
+            on each window (windows whose single fit fails still enter the joint fit).
+        target_angle: Reported angle (default: the common estimated angle, nan if they differ).
+        n_modes: Resonant modes (pass ``bands`` unless it is the reference model's 3).
+        **options: ``bands``, ``reference``, ``min_angle_span`` and the refined options of
+            :func:`identify_window` (``scan_points``, ``whiten_order``, ...).
+
+    Returns:
+        The joint estimate (``method='refined'``, ``moves`` the total).
+
+    Raises:
+        InvalidDataError: No windows or a bad window.
+        IdentificationError: The joint fit failed.
+        ConfigurationError: Bad options.
+    """
+    if not windows:
+        raise InvalidDataError('no windows to fit')
+    opts = dict(options)
+    reference: ModalModel = opts.get('reference', REFERENCE_MODEL)
+    bands = opts.get('bands')
+    min_span = float(opts.get('min_angle_span', MIN_ANGLE_SPAN))
+    joint_keys = {'lag_time_constant', 'estimate_lag', 'computation_delay', 'dead_time',
+                  'damping_start', 'scan_points', 'lag_bounds', 'max_nfev', 'resolve_z',
+                  'whiten_order'}
+    unknown = set(opts) - joint_keys - {'reference', 'bands', 'min_angle_span', 'extra_starts',
+                                        'adequacy_limit', 'delay', 'na', 'nb', 'solver',
+                                        'max_damping'}
+    if unknown:
+        raise ConfigurationError(f'unknown options for identify_joint: {sorted(unknown)}')
+    records = []
+    for j, (current, encoder) in enumerate(windows):
+        try:
+            cur, enc = validate_records(current, encoder, min_records=3, min_angle_span=min_span)
+        except InvalidDataError as exc:
+            raise InvalidDataError(f'window {j}: {exc}') from exc
+        records.append((cur, enc - enc[:, :1]))
+    if isinstance(initial, IdentificationResult):
+        start = initial.model
+    elif isinstance(initial, ModalModel):
+        start = initial
+    else:
+        singles = []
+        for cur, enc in records:
+            try:
+                singles.append(identify_window(cur, enc, sample_period=sample_period,
+                                               n_modes=n_modes, **opts))
+            except GalvoSysidError:
+                continue
+        start = pool_results(singles).model if singles else reference
+    if start.n_modes != n_modes:
+        raise ConfigurationError(f'the starting model has {start.n_modes} modes, not {n_modes}')
+    fit = refine_joint(records, sample_period=sample_period, initial=start, bands=bands,
+                       **{k: opts[k] for k in joint_keys & set(opts)})
+    if target_angle is None:
+        est = np.array([_estimated_angle(enc) for _, enc in records])
+        same = np.ptp(est) <= 0.01 * float(np.median(np.abs(est)))
+        angle = float(np.median(est)) if same else float('nan')
+    else:
+        angle = float(target_angle)
+    return _from_vectors(fit.model.parameters(), fit.std_by_name(), n_modes=n_modes,
+                         target_angle=angle, moves=int(sum(c.shape[0] for c, _ in records)),
+                         input_delay=fit.input_delay, lag_time_constant=fit.lag_time_constant,
+                         fit_percent=fit.fit_percent, method='refined')

@@ -9,7 +9,7 @@ which biases the residues. This module fits the physical model itself::
 with the input dynamics of :class:`galvo_sysid.plant.InputDynamics`: ``d`` whole samples of
 DSP computation delay, an optional fractional dead time, and the current amplifier's
 first-order lag ``L(s) = 1 / (1 + s T_l)``. Every mode is discretised exactly (partial
-fractions, one :func:`scipy.signal.lfilter` per mode). The rigid-body gain k0, the residues
+fractions: closed-form impulse responses convolved by FFT). The rigid-body gain k0, the residues
 k_i, the modes' initial conditions (the residual vibration of the previous move) and an
 offset enter linearly and are solved by linear least squares inside the loop (variable
 projection); only omega_i, zeta_i and T_l are optimised nonlinearly
@@ -34,14 +34,14 @@ back to the white-noise formula ``sigma^2 A^-1`` (optimistic for coloured noise)
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.linalg import LinAlgError, cholesky, qr, solve_toeplitz, solve_triangular
 from scipy.optimize import least_squares
-from scipy.signal import lfilter
 
 from galvo_sysid.errors import ConfigurationError, IdentificationError, InvalidDataError
 from galvo_sysid.modal import default_bands
@@ -56,6 +56,7 @@ if TYPE_CHECKING:
     Floats: TypeAlias = Sequence[float] | NDArray[np.float64]
 
 __all__ = [
+    'DEFAULT_ADEQUACY_LIMIT',
     'DEFAULT_DAMPING_START',
     'DEFAULT_LAG_BOUNDS',
     'DEFAULT_RESOLVE_Z',
@@ -66,6 +67,7 @@ __all__ = [
     'modal_regressors',
     'model_fit_percent',
     'refine_fit',
+    'refine_joint',
     'second_difference',
 ]
 
@@ -78,12 +80,17 @@ DEFAULT_LAG_BOUNDS = (0.0, 3.0)
 DEFAULT_SCAN_POINTS = 24
 """Frequencies per band scanned for the first starting point."""
 
-DEFAULT_WHITEN_ORDER = 8
+DEFAULT_WHITEN_ORDER = 16
 """Order of the AR model of the per-move noise used to prewhiten the second stage."""
+
+DEFAULT_ADEQUACY_LIMIT = 10.0
+"""Residual-to-noise energy ratio (per interval between band edges) above which the model is
+rejected; about 1 for an adequate model."""
 
 DEFAULT_RESOLVE_Z = 3.0
 """Significance |k_i| / std(k_i) below which a mode counts as not resolved."""
 
+_STAGE1_TOL = 1e-5
 _MAX_DAMPING = 0.3
 _MIN_DAMPING = 1e-5
 _FIRST_ROW = 2  # (1 - q^-1)^2 needs two past samples
@@ -94,6 +101,19 @@ def second_difference(x: ArrayLike) -> NDArray[np.float64]:
     arr = np.asarray(x, dtype=float)
     d = np.diff(arr, n=1, axis=-1, prepend=arr[..., :1])
     return np.asarray(np.diff(d, n=1, axis=-1, prepend=0.0 * d[..., :1]), dtype=np.float64)
+
+
+def _fir(b: Sequence[float] | NDArray[np.float64], x: NDArray[np.float64],
+         axis: int = -1) -> NDArray[np.float64]:
+    """FIR filter sum_j b_j x[k - j] along ``axis`` from rest (short filters; faster than
+    :func:`scipy.signal.lfilter`, which filters FIR rows one by one)."""  # noqa: D205, D209
+    xs = np.moveaxis(np.asarray(x, dtype=float), axis, -1)
+    out = np.zeros_like(xs)
+    n = xs.shape[-1]
+    for j, bj in enumerate(b):
+        if bj != 0 and j < n:
+            out[..., j:] += bj * xs[..., : n - j]
+    return np.moveaxis(out, -1, axis)
 
 
 def _pulse_numerator(p: complex, fraction: float, t: float) -> tuple[complex, complex]:
@@ -169,11 +189,9 @@ class _Regressors:
         f = fraction
         t = sample_period
         pad = [0.0] * delay
-        self.rigid_double = lfilter([*pad, 0.0, t * t * (1 - f) ** 2 / 2,
-                                     t * t * (0.5 + f - f * f), t * t * f * f / 2],
-                                    [1.0], u0, axis=-1)
-        self.rigid_single = lfilter([*pad, 0.0, t * (1 - f), t * (2 * f - 1), -t * f], [1.0],
-                                    u0, axis=-1)
+        self.rigid_double = _fir([*pad, 0.0, t * t * (1 - f) ** 2 / 2,
+                                  t * t * (0.5 + f - f * f), t * t * f * f / 2], u0)
+        self.rigid_single = _fir([*pad, 0.0, t * (1 - f), t * (2 * f - 1), -t * f], u0)
 
     def convolve(self, h: NDArray[np.float64]) -> NDArray[np.float64]:
         """Responses to the filtered input of the impulse responses h (m, N): (m,) + u.shape."""
@@ -325,6 +343,9 @@ class RefinedFit:
         unresolved_modes: Modes (1-based) whose residue is below ``resolve_z`` std: the data
             do not determine them; their omega and zeta std are raised to at least those of a
             uniform distribution over the band and over (0, 0.3).
+        residual_to_noise: ``((lo, hi), ratio)`` per interval between band edges: energy of
+            the averaged residual over the noise's (about 1 for an adequate model; empty
+            without per-move records or noise).
     """
 
     model: ModalModel
@@ -343,6 +364,7 @@ class RefinedFit:
     n_evaluations: int
     starts: int
     unresolved_modes: tuple[int, ...] = ()
+    residual_to_noise: tuple[tuple[tuple[float, float], float], ...] = ()
 
     @property
     def input_delay(self) -> float:
@@ -425,12 +447,11 @@ class _Problem:
         self._cache: tuple[NDArray[np.float64], ...] = ()
 
     def apply_whitening(self, arr: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
-        """Filter ``arr`` along the row ``axis`` and drop the filter's start-up rows."""
+        """Filter ``arr`` along the row ``axis`` (from rest: an invertible lower-triangular map,
+        so no row is lost)."""  # noqa: D205, D209
         if self.whiten is None:
             return arr
-        out = lfilter(self.whiten, [1.0], arr, axis=axis)
-        return np.asarray(np.delete(out, np.s_[: self.whiten.size - 1], axis=axis),
-                          dtype=np.float64)
+        return _fir(self.whiten, arr, axis=axis)
 
     # -- parameters ----------------------------------------------------------------------
     @property
@@ -515,43 +536,44 @@ class _Problem:
         _, e = _powers(w_p, z_p, self.n, self.t)
         forced = self.regs.convolve(self.regs.mode_impulses(w_p, z_p, lag, e))[:, _FIRST_ROW:]
         free = _free_responses(w_p, z_p, self.n, self.t, e)
+        # every perturbed column in one matrix, whitened in one call
+        blocks = [forced.T, free.T]
+        if self.fixed_lag is None:
+            step = h * self.t
+            blocks += [self.regs.all(omega, zeta, lag + step)[:, _FIRST_ROW:].T,
+                       self.lag_free(lag + step)[:, None]]
+        new = self.apply_whitening(np.hstack(blocks))
         out: list[tuple[NDArray[np.intp], NDArray[np.float64]]] = []
         for j in range(2 * n):
             i = j % n
             idx = np.array([1 + i, 1 + n + 2 * i, 2 + n + 2 * i])
-            new = self.apply_whitening(np.column_stack([forced[j], free[2 * j],
-                                                        free[2 * j + 1]]))
-            out.append((idx, (new - phi[:, idx]) / h))
+            cols = new[:, [j, 2 * n + 2 * j, 2 * n + 2 * j + 1]]
+            out.append((idx, (cols - phi[:, idx]) / h))
         if self.fixed_lag is None:
-            step = h * self.t
             idx = np.array([*range(1 + n), self.n_linear - 1])
-            new = self.apply_whitening(np.column_stack([
-                self.regs.all(omega, zeta, lag + step)[:, _FIRST_ROW:].T,
-                self.lag_free(lag + step)]))
-            out.append((idx, (new - phi[:, idx]) / (step / self.t)))
+            out.append((idx, (new[:, 6 * n:] - phi[:, idx]) / h))
         return out
 
     def jacobian(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """Golub-Pereyra Jacobian of the projected residual."""
         phi, q, r, scale, coef, resid = self.factor(x)
-        jac = np.empty((resid.size, self.n_nonlinear))
-        for j, (idx, dphi) in enumerate(self.column_derivatives(x, phi)):
-            v = dphi @ coef[idx]
-            term1 = v - q @ (q.T @ v)
-            w = np.zeros(self.n_linear)
-            w[idx] = dphi.T @ resid
-            term2 = q @ solve_triangular(r, w / scale, trans='T', check_finite=False)
-            jac[:, j] = -(term1 + term2)
-        return jac / self.y_scale
+        derivs = self.column_derivatives(x, phi)
+        v = np.empty((resid.size, len(derivs)))
+        w = np.zeros((self.n_linear, len(derivs)))
+        for j, (idx, dphi) in enumerate(derivs):
+            v[:, j] = dphi @ coef[idx]
+            w[idx, j] = dphi.T @ resid
+        term1 = v - q @ (q.T @ v)
+        term2 = q @ solve_triangular(r, w / scale[:, None], trans='T', check_finite=False)
+        return np.asarray(-(term1 + term2) / self.y_scale, dtype=np.float64)
 
-    def scan_mode(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
-                  lag: float, grid: NDArray[np.float64], zeta_scan: float) -> float:
-        """Best frequency for mode i: ``omega[i]`` (at ``zeta[i]``) or a ``grid`` point.
+    def scan_gains(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
+                   lag: float, w_c: NDArray[np.float64],
+                   z_c: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Cost reduction of mode i at each candidate (w_c, z_c), the other modes fixed.
 
-        The grid points are tried at the damping ratio ``zeta_scan``, the other modes fixed.
         The other columns are projected out once; the candidates' columns are computed in one
-        batch, each then costs a 3-column least-squares solve. The current value wins unless a
-        grid point fits better.
+        batch, each then costs a 3-column least-squares solve.
         """
         n = self.n_modes
         phi = self.columns(omega, zeta, lag)
@@ -561,8 +583,6 @@ class _Problem:
         scale[scale == 0] = 1.0
         q, _ = qr(others / scale, mode='economic', check_finite=False)
         r_o = self.yf - q @ (q.T @ self.yf)
-        w_c = np.concatenate([[omega[i]], grid])
-        z_c = np.concatenate([[zeta[i]], np.full(grid.size, zeta_scan)])
         _, e = _powers(w_c, z_c, self.n, self.t)
         forced = self.regs.convolve(self.regs.mode_impulses(w_c, z_c, lag, e))[:, _FIRST_ROW:]
         free = _free_responses(w_c, z_c, self.n, self.t, e)
@@ -574,10 +594,62 @@ class _Problem:
         try:
             sol = np.linalg.solve(gram, rhs[..., None])[..., 0]
         except np.linalg.LinAlgError:
-            return float(omega[i])
+            return np.full(w_c.size, -1.0)
         gain = np.sum(rhs * sol, axis=1)
         gain[~np.isfinite(gain)] = -1.0
-        return float(w_c[int(np.argmax(gain))])
+        return np.asarray(gain, dtype=np.float64)
+
+    def scan_mode(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
+                  lag: float, grid: NDArray[np.float64], zeta_scan: float) -> float:
+        """Best frequency for mode i: ``omega[i]`` (at ``zeta[i]``) or a ``grid`` point (at
+        ``zeta_scan``), the other modes fixed; the current value wins unless a grid point fits
+        better."""  # noqa: D205, D209
+        w_c, z_c = _scan_candidates(omega[i], zeta[i], grid, zeta_scan)
+        return float(w_c[int(np.argmax(self.scan_gains(i, omega, zeta, lag, w_c, z_c)))])
+
+
+def _scan_candidates(omega: float, zeta: float, grid: NDArray[np.float64],
+                     zeta_scan: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    return (np.concatenate([[omega], grid]),
+            np.concatenate([[zeta], np.full(grid.size, zeta_scan)]))
+
+
+def _bounds(band_list: Sequence[tuple[float, float]], estimate_lag: bool,
+            lag_bounds: tuple[float, float]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Bounds of x = [ln omega_i, ln zeta_i, (T_l / T)]."""
+    n = len(band_list)
+    lb = [*np.log([lo for lo, _ in band_list]), *np.full(n, math.log(_MIN_DAMPING))]
+    ub = [*np.log([hi for _, hi in band_list]), *np.full(n, math.log(_MAX_DAMPING))]
+    if estimate_lag:
+        lb.append(lag_bounds[0])
+        ub.append(lag_bounds[1])
+    return np.array(lb), np.array(ub)
+
+
+def _start_vector(prob: _Problem | _JointProblem, model: ModalModel, lower: NDArray[np.float64],
+                  upper: NDArray[np.float64], *, damping_start: float, lag: float,
+                  lag_bounds: tuple[float, float]) -> NDArray[np.float64]:
+    """Starting x from a model: its frequencies, damping raised to ``damping_start``."""
+    omega = np.array(model.natural_frequencies, dtype=float)
+    zeta = np.maximum(np.array(model.damping_ratios, dtype=float), damping_start)
+    t = prob.t
+    lag0 = min(max(lag / t, lag_bounds[0]), lag_bounds[1]) * t
+    x0 = prob.pack(omega, np.minimum(zeta, 0.5 * _MAX_DAMPING), lag0)
+    span = upper - lower
+    return np.clip(x0, lower + 1e-3 * span, upper - 1e-3 * span)
+
+
+def _inflate_unresolved(cov: NDArray[np.float64], unresolved: Sequence[int],
+                        band_list: Sequence[tuple[float, float]], n: int) -> None:
+    """Give the unresolved modes' omega and zeta (in place) at least a uniform prior's std."""
+    for i in unresolved:
+        lo, hi = band_list[i]
+        for j, floor in ((1 + n + i, (hi - lo) / math.sqrt(12.0)),
+                         (1 + 2 * n + i, _MAX_DAMPING / math.sqrt(12.0))):
+            var = max(float(cov[j, j]), floor * floor)
+            cov[j, :] = 0.0
+            cov[:, j] = 0.0
+            cov[j, j] = var
 
 
 def _edge_mode(params: tuple[NDArray[np.float64], NDArray[np.float64], float],
@@ -636,7 +708,9 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
                extra_starts: Sequence[ModalModel] = (),
                lag_bounds: tuple[float, float] = DEFAULT_LAG_BOUNDS,
                scan_points: int = DEFAULT_SCAN_POINTS, resolve_z: float = DEFAULT_RESOLVE_Z,
-               whiten_order: int = DEFAULT_WHITEN_ORDER, max_nfev: int = 100) -> RefinedFit:
+               whiten_order: int = DEFAULT_WHITEN_ORDER,
+               adequacy_limit: float = DEFAULT_ADEQUACY_LIMIT,
+               max_nfev: int = 100) -> RefinedFit:
     """Fit the modal model with exact input dynamics to a window of moves (averaged).
 
     Args:
@@ -662,6 +736,9 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
             edge without an error.
         whiten_order: Order of the AR noise model of the second, prewhitened stage
             (generalised least squares; 0: ordinary least squares only). Needs M > 2 records.
+        adequacy_limit: Largest accepted ratio of the averaged residual's energy to the noise's
+            (estimated from the moves' scatter) in any interval between band edges; above it
+            the model lacks dynamics the data hold (0: no check). Needs M > 2 records.
         max_nfev: Iteration limit of each start.
 
     Returns:
@@ -670,8 +747,9 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
     Raises:
         InvalidDataError: Bad shapes, too short, NaN/Inf.
         ConfigurationError: Bad options.
-        IdentificationError: The fit failed, or a resolved mode ended at its band edge (no
-            physical mode in that band).
+        IdentificationError: The fit failed, a resolved mode ended at its band edge, or the
+            residual between the band edges is far above the noise (no physical mode in a
+            band).
     """
     cur, enc = _validate(current, encoder)
     if not (np.isfinite(sample_period) and sample_period > 0):
@@ -694,22 +772,11 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
         raise InvalidDataError('no excitation: the averaged current is constant')
     prob = _Problem(u_avg, y_avg, sample_period=sample_period, delay=delay, fraction=frac,
                     n_modes=n, fixed_lag=None if estimate_lag else lag_time_constant)
-    lb_w = np.log([lo for lo, _ in band_list])
-    ub_w = np.log([hi for _, hi in band_list])
-    lb = [*lb_w, *np.full(n, math.log(_MIN_DAMPING))]
-    ub = [*ub_w, *np.full(n, math.log(_MAX_DAMPING))]
-    if estimate_lag:
-        lb.append(lo_lag)
-        ub.append(hi_lag)
-    lower, upper = np.array(lb), np.array(ub)
+    lower, upper = _bounds(band_list, estimate_lag, lag_bounds)
 
     def start_vector(model: ModalModel) -> NDArray[np.float64]:
-        omega = np.array(model.natural_frequencies, dtype=float)
-        zeta = np.maximum(np.array(model.damping_ratios, dtype=float), damping_start)
-        lag0 = min(max(lag_time_constant / sample_period, lo_lag), hi_lag) * sample_period
-        x0 = prob.pack(omega, np.minimum(zeta, 0.5 * _MAX_DAMPING), lag0)
-        span = upper - lower
-        return np.clip(x0, lower + 1e-3 * span, upper - 1e-3 * span)
+        return _start_vector(prob, model, lower, upper, damping_start=damping_start,
+                             lag=lag_time_constant, lag_bounds=lag_bounds)
 
     for model in extra_starts:
         if model.n_modes != n:
@@ -732,11 +799,14 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
     if np.max(np.abs(np.log(omega_scan / omega0))) > 0.01:
         starts.append(x_init)
     starts += [start_vector(model) for model in extra_starts]
+    # Stage 1 only has to find the basin when the prewhitened stage 2 polishes afterwards.
+    tol = _STAGE1_TOL if whiten_order > 0 and cur.shape[0] > 2 else 1e-8
     best = None
     for x0 in starts:
         try:
             sol = least_squares(prob.residual, x0, jac=prob.jacobian, bounds=(lower, upper),
-                                x_scale='jac', max_nfev=max_nfev, method='trf')
+                                x_scale='jac', max_nfev=max_nfev, method='trf', ftol=tol,
+                                xtol=tol)
         except (ValueError, LinAlgError) as exc:
             raise IdentificationError(f'refined fit failed: {exc}') from exc
         edge = _edge_mode(prob.unpack(sol.x), band_list)
@@ -750,8 +820,9 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
         # Stage 2 (generalised least squares): prewhiten data and model by an AR model of the
         # per-move noise at the stage-1 optimum, and polish from there.
         coef1 = prob.factor(x)[4]
-        dev = _per_move_deviations(prob, x, coef1, cur, enc)
-        prob.set_whitening(_whitening_filter(dev, whiten_order))
+        dev1 = _per_move_deviations(prob, x, coef1, cur, enc)
+        prob.set_whitening(_whitening_filter(
+            dev1, whiten_order, float(np.sqrt(np.mean(prob.yf_raw**2)))))
         try:
             sol2 = least_squares(prob.residual, x, jac=prob.jacobian, bounds=(lower, upper),
                                  x_scale='jac', max_nfev=max_nfev, method='trf')
@@ -766,7 +837,18 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
                            natural_frequencies=tuple(float(w) for w in omega),
                            damping_ratios=tuple(float(z) for z in zeta))
     names = (*model_out.parameters(), *(('lag',) if estimate_lag else ()))
-    cov, method = _covariance(prob, x, phi, coef, resid, cur, enc)
+    m = cur.shape[0]
+    dev = _per_move_deviations(prob, x, coef, cur, enc) if m > 2 else None
+    cov, method = _covariance(prob, x, phi, coef, resid, dev)
+    noisy = dev is not None and float(np.mean(dev**2)) > 1e-20 * float(np.mean(prob.yf_raw**2))
+    ratios = _residual_to_noise(resid, dev, band_list, sample_period) \
+        if dev is not None and noisy else ()
+    for (lo, hi), ratio in ratios:
+        if adequacy_limit > 0 and ratio > adequacy_limit:
+            raise IdentificationError(
+                f'the residual between {lo:.4g} and {hi:.4g} rad/s is {ratio:.3g} times the '
+                f'noise: the data hold dynamics the model lacks there (no physical mode in a '
+                f'band, or a mode outside its band)')
     # A mode whose residue is not significant is not resolved by these data: its frequency and
     # damping are a noise fit, so their linearised std would mislead (e.g. a pooled mean).
     k_std = np.sqrt(np.clip(np.diag(cov)[1: 1 + n], 0.0, None))
@@ -776,14 +858,7 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
         raise IdentificationError(
             f'no physical mode {edge + 1} in the band {lo:.4g}..{hi:.4g} rad/s (the fit ended at '
             f'omega = {omega[edge]:.4g} rad/s, zeta = {zeta[edge]:.3g})')
-    for i in unresolved:
-        lo, hi = band_list[i]
-        for j, floor in ((1 + n + i, (hi - lo) / math.sqrt(12.0)),
-                         (1 + 2 * n + i, _MAX_DAMPING / math.sqrt(12.0))):
-            var = max(float(cov[j, j]), floor * floor)
-            cov[j, :] = 0.0
-            cov[:, j] = 0.0
-            cov[j, j] = var
+    _inflate_unresolved(cov, unresolved, band_list, n)
     return RefinedFit(
         model=model_out, lag_time_constant=float(lag), lag_estimated=estimate_lag,
         computation_delay=computation_delay, dead_time=float(dead_time),
@@ -792,7 +867,7 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
         initial_conditions=tuple(float(c) for c in coef[1 + n: 1 + 3 * n]),
         offset=float(coef[1 + 3 * n]), fit_percent=filtered_fit_percent(prob.yf_raw, resid),
         cost=float(resid @ resid), n_evaluations=prob.n_eval, starts=len(starts),
-        unresolved_modes=tuple(i + 1 for i in unresolved))
+        unresolved_modes=tuple(i + 1 for i in unresolved), residual_to_noise=ratios)
 
 
 def _per_move_deviations(prob: _Problem, x: NDArray[np.float64], coef: NDArray[np.float64],
@@ -808,11 +883,15 @@ def _per_move_deviations(prob: _Problem, x: NDArray[np.float64], coef: NDArray[n
     return np.asarray(per_move - per_move.mean(axis=0), dtype=np.float64)
 
 
-def _whitening_filter(dev: NDArray[np.float64], order: int) -> NDArray[np.float64]:
-    """FIR A(q) = 1 + a_1 q^-1 + .. making the per-move noise ``dev`` white (Yule-Walker)."""
+def _whitening_filter(dev: NDArray[np.float64], order: int,
+                      scale: float) -> NDArray[np.float64]:
+    """FIR A(q) = 1 + a_1 q^-1 + .. making the per-move noise ``dev`` white (Yule-Walker).
+
+    ``scale`` is the rms of the filtered output: noise below 1e-10 of it is not modelled.
+    """
     n = dev.shape[1]
     r = np.array([np.sum(dev[:, lag:] * dev[:, : n - lag]) for lag in range(order + 1)])
-    if r[0] <= 0:
+    if not r[0] > scale * scale * 1e-20 * dev.size:  # no noise to model (noise-free data)
         return np.array([1.0])
     r = r / r[0] * (1.0 - 1e-9 * np.arange(order + 1) / order)  # slight taper, stays PD
     try:
@@ -822,10 +901,32 @@ def _whitening_filter(dev: NDArray[np.float64], order: int) -> NDArray[np.float6
     return np.concatenate([[1.0], a]) if np.all(np.isfinite(a)) else np.array([1.0])
 
 
+def _residual_to_noise(resid: NDArray[np.float64], dev: NDArray[np.float64],
+                       band_list: Sequence[tuple[float, float]],
+                       sample_period: float) -> tuple[tuple[tuple[float, float], float], ...]:
+    """Energy of the averaged residual over that expected from the noise, per interval.
+
+    The intervals cut [lowest band edge, highest band edge] at every band edge (so the gaps
+    between bands are checked too). About 1 for an adequate model.
+    """
+    m = dev.shape[0]
+    win = np.hanning(resid.size)
+    res_psd = np.abs(np.fft.rfft(resid * win)) ** 2
+    noise_psd = np.mean(np.abs(np.fft.rfft(dev * win, axis=1)) ** 2, axis=0) / m
+    freq = np.fft.rfftfreq(resid.size, sample_period) * 2 * math.pi
+    edges = sorted({e for band in band_list for e in band})
+    out = []
+    for lo, hi in itertools.pairwise(edges):
+        sel = (freq >= lo) & (freq < hi)
+        noise = float(np.sum(noise_psd[sel]))
+        if noise > 0 and np.count_nonzero(sel) >= 3:
+            out.append(((lo, hi), float(np.sum(res_psd[sel])) / noise))
+    return tuple(out)
+
+
 def _covariance(prob: _Problem, x: NDArray[np.float64], phi: NDArray[np.float64],
                 coef: NDArray[np.float64], resid: NDArray[np.float64],
-                cur: NDArray[np.float64], enc: NDArray[np.float64]) -> tuple[
-                    NDArray[np.float64], str]:
+                dev: NDArray[np.float64] | None) -> tuple[NDArray[np.float64], str]:
     """Covariance of [k0, k_i, omega_i, zeta_i, (lag)] (sandwich over the moves if M > 2)."""
     n = prob.n_modes
     omega, zeta, _ = prob.unpack(x)
@@ -848,10 +949,9 @@ def _covariance(prob: _Problem, x: NDArray[np.float64], phi: NDArray[np.float64]
     except (ValueError, LinAlgError) as exc:
         raise IdentificationError(f'singular Jacobian at the optimum: {exc}') from exc
     a_inv = l_inv.T @ l_inv  # (Js^T Js)^-1
-    m = cur.shape[0]
-    if m > 2:
-        dev = prob.apply_whitening(_per_move_deviations(prob, x, coef, cur, enc), axis=1)
-        g = dev @ js  # (M, p)
+    if dev is not None:
+        m = dev.shape[0]
+        g = prob.apply_whitening(dev, axis=1) @ js  # (M, p)
         b = g.T @ g / (m * (m - 1))
         cov_s = a_inv @ b @ a_inv
         method = 'sandwich'
@@ -862,3 +962,274 @@ def _covariance(prob: _Problem, x: NDArray[np.float64], phi: NDArray[np.float64]
     cov = cov_s / np.outer(scale, scale)
     keep = 1 + n + n_nl
     return np.asarray(cov[:keep, :keep], dtype=np.float64), method
+
+
+
+class _JointProblem:
+    """Variable projection over several windows of one plant.
+
+    The windows share omega_i, zeta_i, the lag, k0 and k_i; each keeps its own nuisance
+    columns (free responses, offset, lag state), which are projected out window by window
+    before the shared coefficients are solved. Each window's rows are scaled by ``weights``
+    (the inverse rms of its averaged noise).
+    """
+
+    def __init__(self, problems: Sequence[_Problem], weights: Floats) -> None:
+        self.problems = list(problems)
+        self.t = self.problems[0].t
+        self.n_modes = self.problems[0].n_modes
+        self.n_eval = 0
+        self.set_weights(weights)
+
+    def set_weights(self, weights: Floats) -> None:
+        self.weights = np.asarray(weights, dtype=float)
+        self.y_scale = float(np.sqrt(sum(w * w * float(p.yf @ p.yf) for p, w in
+                                         zip(self.problems, self.weights, strict=True)))) or 1.0
+        self._key: bytes | None = None
+        self._cache: tuple[NDArray[np.float64], NDArray[np.float64]] = (np.zeros(0),
+                                                                          np.zeros(0))
+
+    def unpack(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64],
+                                                      NDArray[np.float64], float]:
+        return self.problems[0].unpack(x)
+
+    def pack(self, omega: Floats, zeta: Floats, lag: float) -> NDArray[np.float64]:
+        return self.problems[0].pack(omega, zeta, lag)
+
+    def solve(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(shared coefficients [k0, k_i], stacked weighted residual)."""
+        key = x.tobytes()
+        if key == self._key:
+            return self._cache
+        self.n_eval += 1
+        n = self.n_modes
+        omega, zeta, lag = self.unpack(x)
+        f_parts, y_parts = [], []
+        for prob, wt in zip(self.problems, self.weights, strict=True):
+            phi = prob.columns(omega, zeta, lag)
+            nuis = phi[:, 1 + n:]
+            scale = np.linalg.norm(nuis, axis=0)
+            scale[scale == 0] = 1.0
+            q, _ = qr(nuis / scale, mode='economic', check_finite=False)
+            f_parts.append(wt * (phi[:, : 1 + n] - q @ (q.T @ phi[:, : 1 + n])))
+            y_parts.append(wt * (prob.yf - q @ (q.T @ prob.yf)))
+        f_all = np.vstack(f_parts)
+        y_all = np.concatenate(y_parts)
+        scale = np.linalg.norm(f_all, axis=0)
+        scale[scale == 0] = 1.0
+        shared = np.linalg.lstsq(f_all / scale, y_all, rcond=None)[0] / scale
+        self._key = key
+        self._cache = (shared, y_all - f_all @ shared)
+        return self._cache
+
+    def residual(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        return self.solve(x)[1] / self.y_scale
+
+    def coefficients(self, x: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+        """Each window's full coefficient vector [shared, its nuisance] at x."""
+        n = self.n_modes
+        omega, zeta, lag = self.unpack(x)
+        shared = self.solve(x)[0]
+        out = []
+        for prob in self.problems:
+            phi = prob.columns(omega, zeta, lag)
+            nuis = np.linalg.lstsq(phi[:, 1 + n:], prob.yf - phi[:, : 1 + n] @ shared,
+                                   rcond=None)[0]
+            out.append(np.concatenate([shared, nuis]))
+        return out
+
+
+def _window_noise_rms(cur: NDArray[np.float64], enc: NDArray[np.float64]) -> float:
+    """Rough rms of a window's averaged filtered noise (the moves' scatter / sqrt(M))."""
+    yf = second_difference(enc)[:, _FIRST_ROW:]
+    m = yf.shape[0]
+    return float(np.sqrt(np.mean((yf - yf.mean(axis=0)) ** 2) / max(m - 1, 1)))
+
+
+def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float,
+                 initial: ModalModel, lag_time_constant: float = 0.6 * TAU,
+                 estimate_lag: bool = True, computation_delay: int = 1, dead_time: float = 0.0,
+                 bands: Sequence[tuple[float, float]] | None = None,
+                 damping_start: float = DEFAULT_DAMPING_START,
+                 lag_bounds: tuple[float, float] = DEFAULT_LAG_BOUNDS,
+                 scan_points: int = DEFAULT_SCAN_POINTS, resolve_z: float = DEFAULT_RESOLVE_Z,
+                 whiten_order: int = DEFAULT_WHITEN_ORDER, max_nfev: int = 100) -> RefinedFit:
+    """Fit one modal model to several windows of the same plant at once (the pooled estimate).
+
+    Like :func:`refine_fit`, on every window's average, with omega_i, zeta_i, the lag, k0 and
+    k_i shared and each window's initial conditions and offset its own. Windows of different
+    target angles, move counts and lengths may be mixed. A weakly excited mode that no single
+    window resolves is resolved by the windows together.
+
+    Args:
+        windows: ``(current, encoder)`` records per window, each (M_w, N_w) (M_w > 2).
+        sample_period: Sampling period [s].
+        initial: Starting model (e.g. :func:`galvo_sysid.identify.pool_results` of the
+            windows' single fits).
+        lag_time_constant: Starting (or fixed) amplifier lag [s].
+        estimate_lag: Estimate the lag.
+        computation_delay: Whole samples of computation delay.
+        dead_time: Extra pure delay [s].
+        bands: Frequency band per mode [rad/s] (default :func:`galvo_sysid.modal.default_bands`).
+        damping_start: Damping ratio the modes start from.
+        lag_bounds: Bounds of the lag [sample periods].
+        scan_points: Frequencies per band of the joint starting scan (0: none).
+        resolve_z: Significance below which a mode counts as not resolved.
+        whiten_order: Order of each window's AR noise model for the prewhitened second stage.
+        max_nfev: Iteration limit of each stage.
+
+    Returns:
+        The joint fit (``initial_conditions`` empty, ``offset`` nan: they are per window;
+        ``fit_percent`` over all windows' filtered averaged outputs).
+
+    Raises:
+        InvalidDataError: No windows, or a window with bad records or fewer than 3 moves.
+        ConfigurationError: Bad options.
+        IdentificationError: The fit failed or a resolved mode ended at its band edge.
+    """
+    if not windows:
+        raise InvalidDataError('no windows to fit')
+    if not (np.isfinite(sample_period) and sample_period > 0):
+        raise ConfigurationError(f'sample_period must be positive and finite, got {sample_period}')
+    if not 0 < damping_start < _MAX_DAMPING:
+        raise ConfigurationError(f'damping_start must be in (0, {_MAX_DAMPING})')
+    if not 0 <= lag_bounds[0] < lag_bounds[1]:
+        raise ConfigurationError(f'bad lag_bounds {lag_bounds}')
+    band_list = _bands_for(initial, bands, sample_period)
+    delay, frac = _split_delay(computation_delay, dead_time, sample_period)
+    n = initial.n_modes
+    records = []
+    for j, (current, encoder) in enumerate(windows):
+        try:
+            cur, enc = _validate(current, encoder)
+        except InvalidDataError as exc:
+            raise InvalidDataError(f'window {j}: {exc}') from exc
+        if cur.shape[0] < 3:
+            raise InvalidDataError(f'window {j}: a joint fit needs at least 3 moves per window')
+        if not np.any(cur.mean(axis=0) - cur[:, 0].mean()):
+            raise InvalidDataError(f'window {j}: no excitation (constant averaged current)')
+        records.append((cur, enc))
+    problems = [_Problem(cur.mean(axis=0), enc.mean(axis=0), sample_period=sample_period,
+                         delay=delay, fraction=frac, n_modes=n,
+                         fixed_lag=None if estimate_lag else lag_time_constant)
+                for cur, enc in records]
+    noise = np.array([_window_noise_rms(cur, enc) for cur, enc in records])
+    noise[~(noise > 0)] = float(np.max(noise)) if np.any(noise > 0) else 1.0
+    joint = _JointProblem(problems, 1.0 / noise)
+    lower, upper = _bounds(band_list, estimate_lag, lag_bounds)
+    x_init = _start_vector(joint, initial, lower, upper, damping_start=damping_start,
+                           lag=lag_time_constant, lag_bounds=lag_bounds)
+    omega0, zeta0, lag0 = joint.unpack(x_init)
+    omega_scan = omega0.copy()
+    if scan_points > 1:
+        zeta_init = np.clip(np.array(initial.damping_ratios, dtype=float), 1e-4,
+                            0.5 * _MAX_DAMPING)
+        for i, (lo, hi) in enumerate(band_list):
+            grid = np.geomspace(lo * 1.01, hi / 1.01, scan_points)
+            w_c, z_c = _scan_candidates(omega_scan[i], zeta_init[i], grid, damping_start)
+            gains = sum(wt * wt * prob.scan_gains(i, omega_scan, zeta_init, lag0, w_c, z_c)
+                        for prob, wt in zip(problems, joint.weights, strict=True))
+            omega_scan[i] = float(w_c[int(np.argmax(gains))])
+    starts = [joint.pack(omega_scan, zeta0, lag0)]
+    if np.max(np.abs(np.log(omega_scan / omega0))) > 0.01:
+        starts.append(x_init)
+
+    def polish(x0: NDArray[np.float64]) -> Any:
+        try:
+            return least_squares(joint.residual, x0, bounds=(lower, upper), x_scale='jac',
+                                 max_nfev=max_nfev, method='trf')
+        except (ValueError, LinAlgError) as exc:
+            raise IdentificationError(f'joint refined fit failed: {exc}') from exc
+
+    best = None
+    for x0 in starts:
+        sol = polish(x0)
+        edge = _edge_mode(joint.unpack(sol.x), band_list)
+        key = (edge is not None, float(sol.cost))
+        if best is None or key < best[0]:
+            best = (key, sol)
+    assert best is not None
+    x = best[1].x
+    if whiten_order > 0:
+        weights = []
+        for prob, coef, (cur, enc) in zip(problems, joint.coefficients(x), records,
+                                          strict=True):
+            dev = _per_move_deviations(prob, x, coef, cur, enc)
+            prob.set_whitening(_whitening_filter(dev, whiten_order,
+                                                 float(np.sqrt(np.mean(prob.yf_raw**2)))))
+            wdev = prob.apply_whitening(dev, axis=1)
+            weights.append(1.0 / max(float(np.sqrt(np.mean(wdev**2) / (cur.shape[0] - 1))),
+                                     1e-300))
+        joint.set_weights(weights)
+        x = polish(x).x
+    edge = _edge_mode(joint.unpack(x), band_list)
+    omega, zeta, lag = joint.unpack(x)
+    coefs = joint.coefficients(x)
+    shared = coefs[0][: 1 + n]
+    cov = _joint_covariance(joint, x, coefs, records)
+    k_std = np.sqrt(np.clip(np.diag(cov)[1: 1 + n], 0.0, None))
+    unresolved = tuple(i for i in range(n) if abs(shared[1 + i]) < resolve_z * k_std[i])
+    if edge is not None and edge not in unresolved:
+        lo, hi = band_list[edge]
+        raise IdentificationError(
+            f'no physical mode {edge + 1} in the band {lo:.4g}..{hi:.4g} rad/s (the joint fit '
+            f'ended at omega = {omega[edge]:.4g} rad/s, zeta = {zeta[edge]:.3g})')
+    _inflate_unresolved(cov, unresolved, band_list, n)
+    res2 = den2 = 0.0
+    for prob, coef in zip(problems, coefs, strict=True):
+        r = prob.yf_raw - prob.columns(omega, zeta, lag, whitened=False) @ coef
+        res2 += float(r @ r)
+        den2 += float(np.sum((prob.yf_raw - prob.yf_raw.mean()) ** 2))
+    model_out = ModalModel(k0=float(shared[0]), residues=tuple(float(c) for c in shared[1:]),
+                           natural_frequencies=tuple(float(w) for w in omega),
+                           damping_ratios=tuple(float(z) for z in zeta))
+    names = (*model_out.parameters(), *(('lag',) if estimate_lag else ()))
+    return RefinedFit(
+        model=model_out, lag_time_constant=float(lag), lag_estimated=estimate_lag,
+        computation_delay=computation_delay, dead_time=float(dead_time),
+        sample_period=float(sample_period), parameter_names=tuple(names), covariance=cov,
+        covariance_method='sandwich', initial_conditions=(), offset=float('nan'),
+        fit_percent=100.0 * (1.0 - math.sqrt(res2 / den2)) if den2 > 0 else float('nan'),
+        cost=res2, n_evaluations=joint.n_eval, starts=len(starts),
+        unresolved_modes=tuple(i + 1 for i in unresolved))
+
+
+def _joint_covariance(joint: _JointProblem, x: NDArray[np.float64],
+                      coefs: Sequence[NDArray[np.float64]],
+                      records: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]]) -> (
+                          NDArray[np.float64]):
+    """Sandwich covariance of the shared parameters, each window's nuisance partialled out."""
+    n = joint.n_modes
+    omega, zeta, lag = joint.unpack(x)
+    phys = np.concatenate([omega, zeta, [joint.t]])
+    a_mat: NDArray[np.float64] | None = None
+    b_mat: NDArray[np.float64] | None = None
+    for prob, wt, coef, (cur, enc) in zip(joint.problems, joint.weights, coefs, records,
+                                          strict=True):
+        phi = prob.columns(omega, zeta, lag)
+        derivs = prob.column_derivatives(x, phi)
+        jac = np.empty((phi.shape[0], 1 + n + len(derivs)))
+        jac[:, : 1 + n] = phi[:, : 1 + n]
+        for j, (idx, dphi) in enumerate(derivs):
+            jac[:, 1 + n + j] = (dphi @ coef[idx]) / phys[j]
+        nuis = phi[:, 1 + n:]
+        scale = np.linalg.norm(nuis, axis=0)
+        scale[scale == 0] = 1.0
+        q, _ = qr(nuis / scale, mode='economic', check_finite=False)
+        jt = wt * (jac - q @ (q.T @ jac))
+        dev = prob.apply_whitening(_per_move_deviations(prob, x, coef, cur, enc), axis=1)
+        g = wt * (dev @ jt)
+        m = dev.shape[0]
+        a_w = jt.T @ jt
+        b_w = g.T @ g / (m * (m - 1))
+        a_mat = a_w if a_mat is None else a_mat + a_w
+        b_mat = b_w if b_mat is None else b_mat + b_w
+    assert a_mat is not None
+    assert b_mat is not None
+    d = np.sqrt(np.diag(a_mat))
+    d[d == 0] = 1.0
+    try:
+        a_inv = np.linalg.inv(a_mat / np.outer(d, d)) / np.outer(d, d)
+    except np.linalg.LinAlgError as exc:
+        raise IdentificationError(f'singular joint Jacobian: {exc}') from exc
+    return np.asarray(a_inv @ b_mat @ a_inv, dtype=np.float64)
