@@ -20,11 +20,13 @@ understate), so a deviation well inside the estimate's noise is never drift.
 Drift that builds up over several windows is found by a weighted linear trend test over the
 last ``trend_windows`` windows, pooled over target angles: a parameter whose deviation has a
 slope ``trend_sigma`` standard errors from zero, moving away from the reference and already
-beyond ``trend_fraction`` of its tolerance, is flagged (WARN) before any single window crosses
-the tolerance. The window-to-window scatter of the identification (``noise_floor``, relative)
-is added to the reported standard deviations, and the slope's standard error is widened when
-the residual scatter is larger than expected, so angle-dependent identification biases do not
-look like a trend.
+beyond ``trend_fraction`` of its tolerance (fitted and latest value), is flagged (WARN) before
+any single window crosses the tolerance. A jump between consecutive windows beyond
+``step_fraction`` of the tolerance restarts that parameter's trend history (a step is not a
+trend, and the windows before it would fake one). The window-to-window scatter of the
+identification (``noise_floor``, relative) is added to the reported standard deviations, and
+the slope's standard error is widened when the residual scatter is larger than expected, so
+angle-dependent identification biases do not look like a trend.
 
 The default tolerances reflect what one window of 100 moves identifies reliably: omega_1,2 to
 a few hundredths of a percent, k0..k2 and zeta_1,2 to a few percent, the third mode hardly at
@@ -219,7 +221,11 @@ class DriftMonitor:
         trend_windows: Windows in the trend test (0 disables it).
         trend_min_windows: Fewest windows before the trend test speaks.
         trend_sigma: Slope significance (in standard errors) needed to flag a trend.
-        trend_fraction: Fraction of the tolerance the fitted deviation must have reached.
+        trend_fraction: Fraction of the tolerance the fitted and the latest deviation must
+            have reached.
+        step_fraction: A jump between consecutive windows larger than this fraction of the
+            tolerance (and than the noise) restarts the parameter's trend history: a step is
+            judged by the tolerance check, and the windows before it would fake a trend.
         min_fit_percent: Windows fitting worse than this warn and stay out of the trend test.
 
     Raises:
@@ -231,7 +237,7 @@ class DriftMonitor:
                  noise_floor: Mapping[str, float] | None = None, warn_fraction: float = 0.5,
                  n_sigma: float = 3.0, trend_windows: int = 8, trend_min_windows: int = 3,
                  trend_sigma: float = 4.0, trend_fraction: float = 0.3,
-                 min_fit_percent: float = 75.0) -> None:
+                 step_fraction: float = 0.5, min_fit_percent: float = 75.0) -> None:
         self.reference = reference
         self.names = parameter_names(reference.n_modes)
         given_tol = dict(tolerances or {})
@@ -252,6 +258,7 @@ class DriftMonitor:
         checks = (('warn_fraction', warn_fraction, 0.0, 1.0), ('n_sigma', n_sigma, 0.0, 100.0),
                   ('trend_sigma', trend_sigma, 0.0, 100.0),
                   ('trend_fraction', trend_fraction, 0.0, 1.0),
+                  ('step_fraction', step_fraction, 0.0, 1e6),
                   ('min_fit_percent', min_fit_percent, -1e9, 100.0))
         for name, value, lo, hi in checks:
             if not (math.isfinite(value) and lo <= value <= hi):
@@ -268,6 +275,7 @@ class DriftMonitor:
         self.trend_min_windows = int(trend_min_windows)
         self.trend_sigma = float(trend_sigma)
         self.trend_fraction = float(trend_fraction)
+        self.step_fraction = float(step_fraction)
         self.min_fit_percent = float(min_fit_percent)
         self._ref = [float(v) for v in reference.parameters().values()]
         self._history: dict[str, deque[_Point]] = {
@@ -367,18 +375,27 @@ class DriftMonitor:
         for name, d, s in zip(self.names, dev, rel_std, strict=True):
             sigma = math.hypot(s, self.noise_floor[name]) if math.isfinite(s) else math.inf
             hist = self._history[name]
+            tol = self.tolerances[name]
+            if hist and self._is_step(hist[-1], d, sigma, tol):
+                hist.clear()  # a step (judged by the tolerance check) is no trend: start over
             hist.append(_Point(x, d, sigma))
             fitted = _weighted_line(hist)
             if fitted is None:
                 continue
             slope, slope_se, now = fitted
             self._last_slope[name] = slope
-            tol = self.tolerances[name]
             if (len(hist) >= self.trend_min_windows and slope_se > 0
                     and abs(slope) > self.trend_sigma * slope_se
-                    and slope * now > 0 and abs(now) > self.trend_fraction * tol):
+                    and slope * now > 0 and slope * d > 0
+                    and min(abs(now), abs(d)) > self.trend_fraction * tol):
                 out[name] = (slope, now)
         return out
+
+    def _is_step(self, last: _Point, d: float, sigma: float, tol: float) -> bool:
+        """Did the deviation jump since the last window (beyond noise and step_fraction)?"""
+        jump = abs(d - last.d)
+        noise = math.hypot(sigma, last.sigma)
+        return jump > self.step_fraction * tol and jump > self.n_sigma * noise
 
 
 def _weighted_line(points: Sequence[_Point]) -> tuple[float, float, float] | None:

@@ -204,3 +204,26 @@ def test_stale_and_json() -> None:
     assert back['deviations']['omega_2'] == pytest.approx(0.03)
     assert back['tolerances']['zeta_3'] == DEFAULT_TOLERANCES['zeta_3']
     json.dumps(s.to_dict(), allow_nan=False)
+
+
+def test_a_step_and_its_recovery_are_no_trend_and_a_later_drift_still_is() -> None:
+    # the demo's sequence: healthy, omega_1 steps -2 % (ERROR), back to nominal, then drifting
+    mon = DriftMonitor(warn_fraction=0.95)
+    seq = drifting_sequence(0.0, 30, seed=4)
+    deviations = [0.0] * 6 + [-0.02] * 6 + [0.0] * 4 + [-0.002 * k for k in range(1, 15)]
+    first_trend = None
+    for i, (r, d) in enumerate(zip(seq, deviations, strict=True)):
+        w = r.natural_frequencies
+        r = FakeResult(r.target_angle, r.k0, r.residues, (w[0] * (1 + d), *w[1:]),
+                       *[getattr(r, f) for f in ('damping_ratios', 'k0_std', 'residues_std',
+                                                 'natural_frequencies_std',
+                                                 'damping_ratios_std')])
+        v = mon.assess(r, window_index=i)
+        if 6 <= i < 12:
+            assert v.level == ERROR
+        elif i < 16:
+            assert v.level == OK, (i, v.message)  # no trend faked by the step's recovery
+        elif first_trend is None and 'omega_1 drifting' in v.message:
+            first_trend = i
+    assert first_trend is not None
+    assert abs(deviations[first_trend]) < DEFAULT_TOLERANCES['omega_1']

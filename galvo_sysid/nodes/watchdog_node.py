@@ -84,6 +84,8 @@ PARAMETERS = (
               0.0, 100.0),
     ParamSpec('trend_fraction', 0.3, 'a trend is flagged once past this fraction of the '
               'tolerance', 0.0, 1.0),
+    ParamSpec('step_fraction', 0.5, 'a jump between windows past this fraction of the '
+              'tolerance restarts the trend history', 0.0, 1e6),
     ParamSpec('min_fit_percent', 75.0, 'windows fitting worse than this warn [%]', -1e9, 100.0),
     ParamSpec('stale_timeout', 5.0, 'STALE after this long without a result [s]',
               0.0, 1e6, exclusive_low=True),
@@ -108,7 +110,7 @@ def _monitor(values: dict[str, Any]) -> DriftMonitor:
         warn_fraction=values['warn_fraction'], n_sigma=values['n_sigma'],
         trend_windows=values['trend_windows'], trend_min_windows=values['trend_min_windows'],
         trend_sigma=values['trend_sigma'], trend_fraction=values['trend_fraction'],
-        min_fit_percent=values['min_fit_percent'])
+        step_fraction=values['step_fraction'], min_fit_percent=values['min_fit_percent'])
 
 
 def _validate(values: dict[str, Any]) -> str | None:
