@@ -289,10 +289,10 @@ def _pool_parameter(v: NDArray[np.float64], s: NDArray[np.float64], *,
     v, s = v[ok], s[ok]
     w = 1.0 / s**2
     if reject > 0 and v.size > 2:
-        # weighted median as a robust centre; drop windows far from it in their own std
-        order = np.argsort(v)
-        cum = np.cumsum(w[order])
-        centre = float(v[order][np.searchsorted(cum, 0.5 * cum[-1])])
+        # Robust centre: the median of the better-determined half of the windows (a weighted
+        # median would follow a single outlier with a tiny std); drop windows farther from it
+        # than ``reject`` of their own std.
+        centre = float(np.median(v[s <= np.median(s)]))
         keep = np.abs(v - centre) <= reject * s
         if np.count_nonzero(keep) >= max(2, v.size // 2):
             v, s, w = v[keep], s[keep], w[keep]
@@ -308,9 +308,10 @@ def pool_results(results: Sequence[IdentificationResult], *,
                  reject: float = 5.0) -> IdentificationResult:
     """Combine windows of the same plant: inverse-variance weighted mean per parameter.
 
-    Per parameter: windows farther than ``reject`` of their own std from the weighted median
-    are left out (a window whose weak mode locked onto a noise peak reports a small std far
-    from the others); the rest are averaged with weights 1/std^2. The pooled std is the
+    Per parameter: windows farther than ``reject`` of their own std from a robust centre (the
+    median of the better-determined half of the windows) are left out (a window whose weak
+    mode locked onto a noise peak reports a small std far from the others); the rest are
+    averaged with weights 1/std^2. The pooled std is the
     inverse-variance std scaled by the Birge ratio ``sqrt(chi^2 / (n - 1))`` when that exceeds
     1 (the windows scatter more than their std say, e.g. an angle-dependent bias). Windows
     without a finite positive std for a parameter are left out of it (plain mean and nan std
