@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
-from rosbags.highlevel import AnyReader
+from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import (
     ConnectionExtRosbag2,
     Qos,
@@ -374,10 +374,17 @@ class BagReader:
         if self.path.is_file() and self.path.suffix not in {'.mcap', '.db3'}:
             msg = f'not a rosbag2 bag (expected a directory, .mcap or .db3): {self.path}'
             raise CorruptBagError(msg)
-        reader = None
         try:
-            reader = AnyReader([self.path], default_typestore=galvo_typestore())
-            reader.open()
+            try:
+                reader = AnyReader([self.path])
+                reader.open()
+            except AnyReaderError as err:
+                if 'no type definitions' not in str(err):
+                    raise
+                # an old bag without stored definitions: decode with our own (built lazily,
+                # it costs a tenth of a second)
+                reader = AnyReader([self.path], default_typestore=galvo_typestore())
+                reader.open()
         except BagError:
             raise
         except Exception as err:  # rosbags raises many types on a bad file; all mean "corrupt"

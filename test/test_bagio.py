@@ -267,3 +267,22 @@ def test_copied_bag_reads_the_same(tmp_path: Path) -> None:
     shutil.copytree(bag, copy)
     with BagReader(bag) as a, BagReader(copy) as b:
         assert [r.data for r in a.raw_messages()] == [r.data for r in b.raw_messages()]
+
+
+def test_bag_without_stored_definitions_uses_ours(tmp_path: Path) -> None:
+    import sqlite3
+
+    records = _records(2)
+    bag = _write(tmp_path / 'old', records, storage='sqlite3')
+    db = sqlite3.connect(next(bag.glob('*.db3')))
+    with db:  # what a bag recorded before message definitions were stored looks like
+        db.execute('DELETE FROM message_definitions')
+    db.close()
+    from rosbags.highlevel import AnyReaderError
+
+    with pytest.raises(AnyReaderError, match='no type definitions'), AnyReader([bag]):
+        pass
+    with BagReader(bag) as reader:
+        halves = [h for h in reader.move_halves() if isinstance(h, MoveHalf)]
+    assert len(halves) == 4
+    np.testing.assert_array_equal(halves[0].data, records[0][3])
