@@ -1,20 +1,26 @@
 """Accuracy benchmark: the paper's Table II, the paper pipeline and the refined fit.
 
-For several noise seeds and the paper's 19 rotation angles (0.1 psi .. 10 psi), one window of
-100 moves each from the closed-loop simulator (:func:`galvo_sysid.simulator.simulate_window`;
-``--source openloop`` uses the open-loop test data instead), identified by
+For several noise seeds, one bag per seed from the closed-loop simulator
+(:class:`galvo_sysid.simulator.GalvoSimulator`, the paper's schedule: for each of the 19
+rotation angles 0.1 psi .. 10 psi, 100 forward moves with the return moves in between; the
+forward moves of an angle are one window; ``--source openloop`` uses the open-loop test data
+instead), each window identified by
 
 - the paper pipeline (method A, pure delay 1.6 T: ``identify_window(method='paper-A')``),
 - the refined fit (``identify_window(method='refined')``),
 
 then prints the median and 90th-percentile |relative error| per parameter (at 1 psi and over
-all angles), the time per window, the pooled estimate of each seed's 19 windows
-(:func:`galvo_sysid.identify.pool_results`) and how well the reported std match the errors.
+all angles), the time per window (wall clock and CPU), the estimated amplifier lag, how well
+the reported std match the errors, and the pooled estimate of each seed's 19 windows, both
+:func:`galvo_sysid.identify.pool_results` (inverse-variance) and
+:func:`galvo_sysid.identify.identify_joint` (one fit to all windows), against issue 3's
+targets.
 
-Run from the repository root::
+Run from the repository root (about a minute for the default 6 seeds)::
 
-    python benchmarks/accuracy.py                  # 3 seeds, all 19 angles
-    python benchmarks/accuracy.py --seeds 0 1 2 3 4 --quick
+    python benchmarks/accuracy.py
+    python benchmarks/accuracy.py --seeds 0 1 2 3 4 5 6 7 8 9
+    python benchmarks/accuracy.py --seeds 0 1 --quick       # 5 angles only
 
 BLAS threads are limited to one (set before numpy loads): the fits work on small matrices,
 for which multithreaded OpenBLAS is slower, much slower on a busy 2-core machine.
@@ -96,7 +102,7 @@ def _row(name: str, cells: list[float], width: int = 10) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n', 1)[0])
-    parser.add_argument('--seeds', type=int, nargs='+', default=[0, 1, 2])
+    parser.add_argument('--seeds', type=int, nargs='+', default=[0, 1, 2, 3, 4, 5])
     parser.add_argument('--moves', type=int, default=100)
     parser.add_argument('--source', choices=('simulator', 'openloop'), default='simulator')
     parser.add_argument('--quick', action='store_true',

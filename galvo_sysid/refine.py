@@ -87,7 +87,7 @@ DEFAULT_ADEQUACY_LIMIT = 10.0
 """Residual-to-noise energy ratio (per interval between band edges) above which the model is
 rejected; about 1 for an adequate model."""
 
-DEFAULT_RESOLVE_Z = 3.0
+DEFAULT_RESOLVE_Z = 5.0
 """Significance |k_i| / std(k_i) below which a mode counts as not resolved."""
 
 _STAGE1_TOL = 1e-5
