@@ -2,34 +2,49 @@
 
 The paper fits a 15th-order ARX model to the averaged window and decomposes it; its third
 mode is poor (Table II: zeta_3 +655 %) and the amplifier lag is treated as a pure delay,
-which biases the residues. This module fits the physical model itself::
+which biases the residues (k_2 about -20 %). This module fits the physical model itself::
 
     y[k] = P_mech(s) L(s) z^-d u[k]  (exact zero-order hold)  + free response + offset
 
 with the input dynamics of :class:`galvo_sysid.plant.InputDynamics`: ``d`` whole samples of
 DSP computation delay, an optional fractional dead time, and the current amplifier's
-first-order lag ``L(s) = 1 / (1 + s T_l)``. Every mode is discretised exactly (partial
-fractions: closed-form impulse responses convolved by FFT). The rigid-body gain k0, the residues
-k_i, the modes' initial conditions (the residual vibration of the previous move) and an
-offset enter linearly and are solved by linear least squares inside the loop (variable
-projection); only omega_i, zeta_i and T_l are optimised nonlinearly
-(:func:`scipy.optimize.least_squares`, Golub-Pereyra Jacobian). Data and model are both
-filtered by (1 - q^-1)^2, which removes the start angle, a slow drift and the rigid-body
-initial velocity; the offset column absorbs a constant torque (current offset).
+first-order lag ``L(s) = 1 / (1 + s T_l)``, whose time constant is estimated (the physical
+form of the paper's "1.6 tau found by trial and error"). Every mode is discretised exactly
+(partial fractions: closed-form impulse responses, convolved with the input by FFT in one
+batch). The rigid-body gain k0, the residues k_i, the modes' initial conditions (the residual
+vibration of the previous move), an offset and the lag state's initial value enter linearly
+and are solved by linear least squares inside the loop (variable projection); only omega_i,
+zeta_i and T_l are optimised nonlinearly (:func:`scipy.optimize.least_squares`,
+Golub-Pereyra Jacobian). Data and model are both filtered by (1 - q^-1)^2, which removes the
+start angle, a slow drift and the rigid-body initial velocity.
 
-The output-error cost has local minima in the frequency of a weakly excited, lightly damped
-mode (ripples about 2 pi / (N T) apart). With a large damping ratio the same cost is one broad
-bowl around the true frequency, so the fit starts every mode at a large damping ratio
-(``damping_start``) from the starting frequencies (the paper pipeline's) and lets the
-optimiser reduce it: a continuation that avoids the ripples. Further starting points can be
-added (``omega_starts``); the lowest cost wins.
+Starting points. The output-error cost has local minima in the frequency of a weakly excited,
+lightly damped mode (ripples about 2 pi / (N T) apart); with a large damping ratio the same
+cost is one broad bowl around the true frequency. So each mode's frequency is first scanned
+over its band at a large damping ratio (``damping_start``), the others held at the starting
+model's (the paper pipeline's) values; the fit then starts every mode at that large damping
+ratio and lets the optimiser reduce it (a continuation that avoids the ripples). The starting
+model itself and ``extra_starts`` are tried too; the lowest cost wins.
 
-The uncertainty (:attr:`RefinedFit.covariance`) is the sandwich covariance
-``A^-1 B A^-1`` with ``A = J^T J`` from the Jacobian J of the filtered residual with respect
-to all parameters (nonlinear and linear) and ``B = J^T S J``, S the covariance of the averaged
-residual, estimated from the per-move residuals (their scatter over the moves divided by M).
-It holds for coloured noise and for closed-loop input noise; without per-move records it falls
-back to the white-noise formula ``sigma^2 A^-1`` (optimistic for coloured noise).
+Two stages. Stage 1 is ordinary least squares on the filtered data; stage 2 prewhitens data
+and model with an AR model of the per-move noise (generalised least squares), which mostly
+sharpens k0 (3x).
+
+Uncertainty (:attr:`RefinedFit.covariance`): the sandwich covariance ``A^-1 B A^-1`` with
+``A = J^T J`` from the Jacobian J of the (whitened) filtered residual with respect to all
+parameters and ``B = J^T S J``, S the covariance of the averaged residual estimated from the
+per-move residuals (their scatter over the moves divided by M). It holds for coloured noise
+and closed-loop input noise; without per-move records (M <= 2) it falls back to the
+white-noise formula ``sigma^2 A^-1``. A mode whose residue is below ``resolve_z`` of its std
+is reported as not resolved, with an uninformative std for its frequency and damping
+(a weak mode's best fit is then a noise peak: the linearised std would be far too small).
+
+Checks. A resolved mode ending at its band edge, or a residual between the band edges far
+above the noise (``adequacy_limit``), raises :class:`~galvo_sysid.errors.IdentificationError`:
+the data hold dynamics the model does not place in its bands.
+
+:func:`refine_joint` fits several windows of one plant at once (shared modal parameters,
+per-window nuisance terms): the pooled estimate, which resolves a mode no single window does.
 """
 
 from __future__ import annotations
@@ -128,15 +143,6 @@ def _pulse_numerator(p: complex, fraction: float, t: float) -> tuple[complex, co
         g1 = complex((e1 - 1.0) / p)
         h2 = complex(e1 * (lam - 1.0) / p)
     return g1, h2 - lam * g1
-
-
-@dataclass(frozen=True)
-class _Dynamics:
-    """Input dynamics in the form the regressors need."""
-
-    delay: int  # whole samples (>= 1 with the computation delay)
-    fraction: float  # fractional dead time [samples], 0 <= f < 1
-    lag: float  # amplifier lag [s]
 
 
 def _split_delay(computation_delay: int, dead_time: float, sample_period: float) -> tuple[int,
@@ -318,9 +324,9 @@ def _free_responses(omega: Floats, zeta: Floats, n: int, sample_period: float,
     return out
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RefinedFit:
-    """Outcome of :func:`refine_fit`.
+    """Outcome of :func:`refine_fit` and :func:`refine_joint`.
 
     Attributes:
         model: The identified mechanical modal model.
@@ -333,11 +339,13 @@ class RefinedFit:
             ``'lag'`` when estimated.
         covariance: Covariance of those parameters (physical units).
         covariance_method: ``'sandwich'`` (from the per-move residuals) or ``'white'``.
-        initial_conditions: Cosine and sine amplitudes of each mode's free response.
-        offset: Constant of the filtered output (a current offset through the rigid body).
+        initial_conditions: Amplitudes of each mode's two free-response columns (empty for a
+            joint fit).
+        offset: Constant of the filtered output (a current offset through the rigid body;
+            nan for a joint fit).
         fit_percent: 100 (1 - ||r|| / ||yf - mean(yf)||) of the (1 - q^-1)^2-filtered
             averaged output yf and residual r.
-        cost: Sum of squared filtered residuals.
+        cost: Sum of squared filtered (unwhitened) residuals.
         n_evaluations: Residual evaluations spent by the optimiser (all starts).
         starts: Number of starting points tried.
         unresolved_modes: Modes (1-based) whose residue is below ``resolve_z`` std: the data
