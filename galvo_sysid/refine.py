@@ -98,7 +98,7 @@ DEFAULT_SCAN_POINTS = 24
 DEFAULT_WHITEN_ORDER = 16
 """Order of the AR model of the per-move noise used to prewhiten the second stage."""
 
-DEFAULT_ADEQUACY_LIMIT = 10.0
+DEFAULT_ADEQUACY_LIMIT = 20.0
 """Residual-to-noise energy ratio (per interval between band edges) above which the model is
 rejected; about 1 for an adequate model."""
 
