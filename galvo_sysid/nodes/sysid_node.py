@@ -59,7 +59,7 @@ PARAMETERS = (
     ParamSpec('nb', 15, 'ARX order of B[q] (paper pipeline, also the refined start)', 2, 60),
     ParamSpec('queue_size', 16, 'windows waiting for a fit at most (oldest dropped beyond)',
               1, 10_000, read_only=True),
-    ParamSpec('fit_processes', 1, 'child processes for the fits (0: fit on a thread)', 0, 16,
+    ParamSpec('fit_processes', 2, 'child processes for the fits (0: fit on a thread)', 0, 16,
               read_only=True),
     ParamSpec('qos_depth', 1000, 'input queue depth per topic (0: keep all)', 0, 1_000_000,
               read_only=True),
