@@ -20,6 +20,7 @@ from __future__ import annotations
 import collections
 import concurrent.futures
 import multiprocessing
+import os
 import threading
 import time
 from dataclasses import dataclass
@@ -55,11 +56,23 @@ def fit_window(window: Window, *, method: str = 'refined', n_modes: int = 3,
                            **dict(options or {}))
 
 
-def _ignore_sigint() -> None:
-    """Child processes leave Ctrl-C to their parent (which shuts them down)."""
+def _child_init(parent: int) -> None:
+    """Set up a fit process: leave Ctrl-C to the parent, and die with it.
+
+    The parent shuts its children down on Ctrl-C; if it is killed outright (SIGKILL), a
+    watcher thread notices the new parent pid and ends the child, so no orphan is left.
+    """
+    import os
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(0)
+
+    threading.Thread(target=watch, name='parent-watch', daemon=True).start()
 
 
 def _warm_up() -> bool:
@@ -135,7 +148,8 @@ class WindowFitter:
         self._pool: concurrent.futures.ProcessPoolExecutor | None = None
         if self.processes:
             self._pool = self._new_pool()
-            self._pool.submit(_warm_up)
+            for _ in range(self.processes):  # busy workers make the pool start the next one
+                self._pool.submit(_warm_up)
         self.fitted = 0
         """Windows identified."""
         self.failed = 0
@@ -151,7 +165,7 @@ class WindowFitter:
     def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
         return concurrent.futures.ProcessPoolExecutor(
             max_workers=self.processes, mp_context=multiprocessing.get_context('spawn'),
-            initializer=_ignore_sigint)
+            initializer=_child_init, initargs=(os.getpid(),))
 
     def set_fit(self, fit: Callable[[Window], IdentificationResult]) -> None:
         """Use ``fit`` for the windows taken from the queue from now on."""

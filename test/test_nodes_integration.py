@@ -1,7 +1,8 @@
 """The three nodes as separate processes over real DDS (Fast DDS on localhost).
 
 - test_live_identification_drift_stale_and_recovery: galvo_driver -> sysid -> watchdog in
-  namespace /scanner_a: published parameters against the simulator's truth, the drift flag
+  namespace /scanner_a: published parameters against the simulator's truth, sysid killed
+  (SIGKILL) mid-window and restarted resumes with whole, correct windows, the drift flag
   when the plant changes live (a step of omega_1 set as a driver parameter), STALE on
   /diagnostics when the driver stops, OK again when a new driver runs.
 - test_bad_moves_are_set_aside_and_the_window_completes: a test publisher feeds sysid
@@ -151,7 +152,7 @@ def test_live_identification_drift_stale_and_recovery(graph: Graph) -> None:
                                    RESULTS_QOS)
     graph.node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 50)
     remap = f'__ns:={ns}'
-    graph.start('sysid', 'sysid', '-r', remap, '-p', 'stats_period:=0.0')
+    sysid = graph.start('sysid', 'sysid', '-r', remap, '-p', 'stats_period:=0.0')
     graph.start('watchdog', 'watchdog', '-r', remap, '-p', 'stale_timeout:=3.0',
                 '-p', 'publish_rate:=4.0')
     driver_args = ('-r', remap, '-p', 'angles:=[0.3, 0.9]', '-p', 'seed:=3')
@@ -180,7 +181,20 @@ def test_live_identification_drift_stale_and_recovery(graph: Graph) -> None:
     ok = next(d for d in diags if d[1] == 0)
     assert ok[2] == 'scanner_a: plant drift'
 
-    # 2. the plant changes live: omega_1 steps down 3 %
+    # 2. sysid killed mid-window (SIGKILL) and restarted: it resumes, its windows are whole
+    sysid.popen.kill()
+    sysid.popen.wait(timeout=10)
+    killed = time.monotonic()
+    before = len(results)
+    sysid = graph.start('sysid', 'sysid2', '-r', remap, '-p', 'stats_period:=0.0')
+    graph.spin_until(lambda: len(results) >= before + 2, 60, 'results after the restart')
+    for msg in results[before:]:
+        assert msg.moves == 100
+        assert abs(rel(msg.natural_frequencies[0], REF.natural_frequencies[0])) < 0.002
+    assert results[before].window_index == 0  # a new process numbers its windows anew
+    assert time.monotonic() - killed < 30
+
+    # 3. the plant changes live: omega_1 steps down 3 %
     seen = len(results)
     out = graph.set_parameters(f'{ns}/galvo_driver', [
         Parameter('step.parameter', value='omega_1'), Parameter('step.factor', value=0.97)])
@@ -199,14 +213,14 @@ def test_live_identification_drift_stale_and_recovery(graph: Graph) -> None:
     assert flagged.relative_deviation[i] == pytest.approx(-0.03, abs=0.002)
     graph.spin_until(lambda: diags[-1][1] == 2, 10, 'diagnostics ERROR')
 
-    # 3. the driver stops: STALE within the timeout
+    # 4. the driver stops: STALE within the timeout
     assert driver.stop() == 0
     stopped = time.monotonic()
     graph.spin_until(lambda: diags[-1][1] == 3, 15, 'diagnostics STALE')
     assert diags[-1][0] - stopped < 3.0 + 3.0  # timeout + one fit + a diagnostics period
     graph.spin_until(lambda: verdicts[-1].level == DriftStatus.STALE, 5, 'DriftStatus STALE')
 
-    # 4. a new (healthy) driver: results again and diagnostics OK again
+    # 5. a new (healthy) driver: results again and diagnostics OK again
     n_before = len(results)
     graph.start('galvo_driver', 'driver2', *driver_args)
     graph.spin_until(lambda: len(results) > n_before + 1, 60, 'results after the restart')

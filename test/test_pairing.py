@@ -300,3 +300,29 @@ def test_arbitrary_halves_never_raise_and_stay_bounded(items: list[MoveHalf]) ->
         assert r.reason
     w.flush(min_moves=1)
     summarize_rejections(w.pop_rejections())
+
+
+def test_lost_messages_windows_complete_from_the_moves_that_arrived() -> None:
+    # a best-effort link loses 10 % of the messages: every move missing a half is set aside
+    # once (unpaired), the windows fill up with the complete moves
+    rng = np.random.default_rng(7)
+    w = MoveWindower(window_size=20, pair_timeout=0.05)
+    windows = []
+    lost = set()
+    for i in range(120):
+        for h in halves(i):
+            if rng.random() < 0.1:
+                lost.add(i)
+                continue
+            windows += w.add(h)
+    w.expire(1e9)
+    rej = w.pop_rejections()
+    assert {r.move_id for r in rej} <= lost
+    assert all('unpaired' in r.reason for r in rej)
+    used = [m for win in windows for m in win.move_ids]
+    assert not set(used) & lost
+    assert len(used) == len(set(used))
+    assert all(win.moves == 20 for win in windows)
+    complete = 120 - len(lost)
+    assert len(windows) == complete // 20  # one angle: one window per 20 complete moves
+    assert w.moves_accepted == complete
