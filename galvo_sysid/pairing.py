@@ -158,6 +158,7 @@ class MoveWindower:
         max_windows: Most open windows held (the paper's schedule needs 38: 19 angles, both
             signs).
         max_buffered_samples: Most samples (current and encoder together) held in open windows.
+        first_index: Index of the first window handed out (to continue a numbering).
 
     Raises:
         ConfigurationError: On an out-of-range setting.
@@ -166,7 +167,7 @@ class MoveWindower:
     def __init__(self, *, window_size: int = 100, samples: int = 0, max_samples: int = 65536,
                  min_samples: int = 32, pair_timeout: float = 1.0, time_jump: float = 1.0,
                  angle_resolution: float = 1e-6, max_pending: int = 2000, max_windows: int = 64,
-                 max_buffered_samples: int = 20_000_000) -> None:
+                 max_buffered_samples: int = 20_000_000, first_index: int = 0) -> None:
         if int(window_size) < 2:
             raise ConfigurationError(f'window_size must be >= 2, got {window_size}')
         if int(min_samples) < 1 or int(max_samples) < int(min_samples):
@@ -200,7 +201,7 @@ class MoveWindower:
         self._rejections: list[Rejection] = []
         self._buffered = 0
         self._newest = -math.inf
-        self._next_index = 0
+        self._next_index = int(first_index)
         self.resets = 0
         """How many times a stamp jumping back reset the buffers."""
         self.moves_accepted = 0
@@ -223,6 +224,11 @@ class MoveWindower:
     def buffered_samples(self) -> int:
         """Samples (current and encoder) held in open windows."""
         return self._buffered
+
+    @property
+    def next_index(self) -> int:
+        """Index the next window will get."""
+        return self._next_index
 
     @property
     def newest_stamp(self) -> float:
@@ -360,7 +366,15 @@ class MoveWindower:
     def _recent(self, move_id: int, stamp: float) -> bool | None:
         """True/False if the move was recently used/set aside (stamp within pair_timeout)."""
         entry = self._done.get(move_id)
-        if entry is None or not abs(entry[0] - stamp) <= self.pair_timeout:
+        if entry is None:
+            return None
+        if not math.isfinite(entry[0]):
+            # set aside before any stamp was known (a first half without a finite stamp):
+            # recognise its partner by move_id alone, and from then on by the partner's stamp
+            if math.isfinite(stamp):
+                self._done[move_id] = (stamp, entry[1])
+            return entry[1]
+        if not abs(entry[0] - stamp) <= self.pair_timeout:
             return None
         return entry[1]
 

@@ -142,7 +142,7 @@ def test_live_identification_drift_stale_and_recovery(graph: Graph) -> None:
 
     def on_diag(msg: DiagnosticArray) -> None:
         for s in msg.status:
-            if s.hardware_id == 'scanner_a':
+            if s.hardware_id == 'scanner_a' and s.name.endswith('plant drift'):
                 diags.append((time.monotonic(), int.from_bytes(s.level, 'little'), s.name,
                               s.message))
 
@@ -256,6 +256,13 @@ def test_bad_moves_are_set_aside_and_the_window_completes(graph: Graph) -> None:
     results: list[ModalParameters] = []
     graph.node.create_subscription(ModalParameters, f'{ns}/galvo/modal_parameters',
                                    results.append, RESULTS_QOS)
+    diags: list[tuple[int, str, str]] = []
+
+    def on_diag(msg: DiagnosticArray) -> None:
+        diags.extend((int.from_bytes(s.level, 'little'), s.name, s.message)
+                     for s in msg.status if s.hardware_id == 'scanner_b')
+
+    graph.node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 50)
     pubs = {s: graph.node.create_publisher(MoveSamples, f'{ns}/galvo/{s}', MOVES_QOS)
             for s in ('current', 'encoder')}
     sysid = graph.start('sysid', 'sysid', '-r', f'__ns:={ns}', '-p', 'window_size:=10',
@@ -302,6 +309,9 @@ def test_bad_moves_are_set_aside_and_the_window_completes(graph: Graph) -> None:
     assert graph.get_parameter(f'{ns}/sysid', 'method').string_value == 'refined'
 
     graph.spin_until(lambda: 'unpaired' in sysid.text(), 10, 'the missing partner reported')
+    graph.spin_until(lambda: any(d[0] == 1 and 'set aside' in d[2] for d in diags), 10,
+                     'sysid diagnostics WARN on the set-aside moves')
+    assert all(d[1] == 'scanner_b: identification' for d in diags)
     sysid.stop()
     log = sysid.text()
     for reason in ('(id 1000; 0.3 deg): NaN or Inf in encoder',

@@ -15,6 +15,7 @@ import functools
 import sys
 from typing import TYPE_CHECKING, Any
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from galvo_sysid_msgs.msg import ModalParameters, MoveSamples
 from rclpy.node import Node
 
@@ -22,14 +23,17 @@ from galvo_sysid.errors import GalvoSysidError
 from galvo_sysid.messages import fill, fill_header, modal_parameters_fields, move_half_from_msg
 from galvo_sysid.nodes._common import (
     CURRENT_TOPIC,
+    DIAGNOSTICS_TOPIC,
     ENCODER_TOPIC,
     RESULT_TOPIC,
     ParameterSet,
     ParamSpec,
+    diagnostics_qos,
     logger,
     moves_qos,
     results_qos,
     run_node,
+    scanner_name,
 )
 from galvo_sysid.online import FitOutcome, SysidTask, fit_window
 
@@ -67,6 +71,9 @@ PARAMETERS = (
               1, 10_000),
     ParamSpec('stats_period', 30.0, 'log counters every this many seconds (0: never)',
               0.0, 1e6),
+    ParamSpec('diagnostics_period', 1.0, 'publish counters on /diagnostics every this many '
+              'seconds (0: never)', 0.0, 1e6, read_only=True),
+    ParamSpec('hardware_id', '', "the scanner's name in diagnostics (default: the namespace)"),
 )
 _WINDOWER_KEYS = ('window_size', 'samples', 'max_samples', 'pair_timeout', 'time_jump',
                   'max_pending', 'max_windows', 'max_buffered_samples')
@@ -101,9 +108,13 @@ class SysidNode(Node):
         self.create_subscription(MoveSamples, ENCODER_TOPIC,
                                  functools.partial(self._on_half, signal='encoder'), qos)
         self.create_timer(0.25, self.task.tick)
-        self._stats_timer = None
         if v['stats_period'] > 0:
-            self._stats_timer = self.create_timer(v['stats_period'], self._log_stats)
+            self.create_timer(v['stats_period'], self._log_stats)
+        self.diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC,
+                                                 diagnostics_qos())
+        self._reported = self.task.stats()
+        if v['diagnostics_period'] > 0:
+            self.create_timer(v['diagnostics_period'], self._publish_diagnostics)
         self.log.info(
             f'identifying windows of {v["window_size"]} moves ({v["method"]}) from '
             f'{self.resolve_topic_name(CURRENT_TOPIC)} and '
@@ -124,7 +135,8 @@ class SysidNode(Node):
             from galvo_sysid.pairing import MoveWindower
 
             old = self.task.windower
-            self.task.windower = MoveWindower(**self._windower_args(values))
+            self.task.windower = MoveWindower(**self._windower_args(values),
+                                              first_index=old.next_index)
             held = sum(old.fill_levels().values())
             self.log.warning(
                 f'window settings changed ({", ".join(sorted(changed))}): {held} buffered '
@@ -160,6 +172,30 @@ class SysidNode(Node):
     def _log_stats(self) -> None:
         s = self.task.stats()
         self.log.info('counters: ' + ', '.join(f'{k}={v}' for k, v in s.items()))
+
+    def _publish_diagnostics(self) -> None:
+        """Counters on /diagnostics; WARN when moves were set aside or windows lost lately."""
+        now = self.task.stats()
+        new = {k: now[k] - self._reported.get(k, 0) for k in
+               ('moves_rejected', 'windows_failed', 'windows_dropped', 'windows_identified')}
+        self._reported = now
+        trouble = [f'{new["moves_rejected"]} move(s) set aside'] if new['moves_rejected'] else []
+        if new['windows_failed']:
+            trouble.append(f'{new["windows_failed"]} window(s) not identified')
+        if new['windows_dropped']:
+            trouble.append(f'{new["windows_dropped"]} window(s) dropped (fits too slow)')
+        status = DiagnosticStatus()
+        scanner = scanner_name(self, self.params.values['hardware_id'])
+        status.name = f'{scanner}: identification'
+        status.hardware_id = scanner
+        status.level = DiagnosticStatus.WARN if trouble else DiagnosticStatus.OK
+        status.message = ('; '.join(trouble) + ' since the last report') if trouble else \
+            f'{now["windows_identified"]} windows identified, {now["moves_accepted"]} moves used'
+        status.values = [KeyValue(key=k, value=str(x)) for k, x in now.items()]
+        array = DiagnosticArray()
+        array.header.stamp = self.get_clock().now().to_msg()
+        array.status = [status]
+        self.diagnostics.publish(array)
 
     def close(self) -> None:
         """Stop the fit workers (queued windows are finished for up to 2 s)."""
