@@ -50,7 +50,7 @@ def stamp_to_seconds(stamp: Any) -> float:
     """Seconds of a ``builtin_interfaces/Time`` (anything with ``sec`` and ``nanosec``)."""
     try:
         return float(int(stamp.sec) + int(stamp.nanosec) * 1e-9)
-    except (AttributeError, TypeError, ValueError) as err:
+    except (AttributeError, TypeError, ValueError, OverflowError) as err:
         raise InvalidDataError(f'not a time stamp: {err}') from err
 
 
@@ -85,7 +85,7 @@ def move_half_from_msg(msg: Any, *, signal: str) -> MoveHalf:
                         target_angle=float(msg.target_angle),
                         sample_period=float(msg.sample_period),
                         stamp=stamp_to_seconds(msg.header.stamp), data=values)
-    except (AttributeError, TypeError, ValueError) as err:
+    except (AttributeError, TypeError, ValueError, OverflowError) as err:
         raise InvalidDataError(f'bad MoveSamples message on {signal}: {err}') from err
 
 
@@ -154,7 +154,7 @@ def result_from_msg(msg: Any, *, method: str = 'refined',
             damping_ratios=damping, k0_std=float(msg.k0_std), residues_std=residues_std,
             natural_frequencies_std=frequencies_std, damping_ratios_std=damping_std,
             fit_percent=float(msg.fit_percent), method=method)
-    except (AttributeError, TypeError, ValueError) as err:
+    except (AttributeError, TypeError, ValueError, OverflowError) as err:
         if isinstance(err, InvalidDataError):
             raise
         raise InvalidDataError(f'bad ModalParameters message: {err}') from err
@@ -185,7 +185,7 @@ def verdict_from_msg(msg: Any) -> DriftVerdict:
                                names=tuple(str(n) for n in msg.names),
                                relative_deviation=_tuple(msg.relative_deviation),
                                tolerance=_tuple(msg.tolerance), message=str(msg.message))
-    except (AttributeError, TypeError, ValueError) as err:
+    except (AttributeError, TypeError, ValueError, OverflowError) as err:
         raise InvalidDataError(f'bad DriftStatus message: {err}') from err
     if not 0 <= verdict.level <= STALE:
         raise InvalidDataError(f'DriftStatus: unknown level {verdict.level}')
