@@ -168,8 +168,11 @@ def fit_arx(u: ArrayLike, y: ArrayLike, *, sample_period: float, na: int = 15, n
         raise ConfigurationError(f"solver must be 'normal' or 'qr', got {solver!r}")
     if not (np.isfinite(sample_period) and sample_period > 0):
         raise ConfigurationError(f'sample_period must be positive and finite, got {sample_period}')
-    u_arr = np.asarray(u, dtype=float)
-    y_arr = np.asarray(y, dtype=float)
+    try:
+        u_arr = np.asarray(u, dtype=float)
+        y_arr = np.asarray(y, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InvalidDataError(f'u and y must be numeric arrays: {exc}') from exc
     if u_arr.ndim != 1 or y_arr.shape != u_arr.shape:
         raise InvalidDataError(f'u and y must be 1-D of equal length, got shapes {u_arr.shape} '
                                f'and {y_arr.shape}')

@@ -54,6 +54,10 @@ __all__ = [
 Filter = tuple['NDArray[np.float64]', 'NDArray[np.float64]']
 
 
+_MAX_DELAY_SAMPLES = 1_000_000
+"""Longest delay a filter is built for [samples] (a longer one is a unit mistake)."""
+
+
 def _check_period(sample_period: float) -> None:
     if not (np.isfinite(sample_period) and sample_period > 0):
         raise ConfigurationError(f'sample_period must be positive and finite, got {sample_period}')
@@ -101,6 +105,9 @@ def pade_delay_filter(delay: float, *, sample_period: float, order: int = 3) -> 
     if not 1 <= order <= 10:
         raise ConfigurationError(f'pade order must be 1..10, got {order}')
     whole_f, frac = divmod(delay, sample_period)
+    if not whole_f <= _MAX_DELAY_SAMPLES:
+        raise ConfigurationError(f'delay {delay:g} s is more than {_MAX_DELAY_SAMPLES} sample '
+                                 f'periods of {sample_period:g} s')
     whole = round(whole_f)
     eps = 1e-9 * sample_period
     if frac >= sample_period - eps:
