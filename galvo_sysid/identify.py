@@ -287,7 +287,6 @@ def _pool_parameter(v: NDArray[np.float64], s: NDArray[np.float64], *,
         finite = v[np.isfinite(v)]
         return (float(np.mean(finite)) if finite.size else float('nan')), float('nan')
     v, s = v[ok], s[ok]
-    w = 1.0 / s**2
     if reject > 0 and v.size > 2:
         # Robust centre: the median of the better-determined half of the windows (a weighted
         # median would follow a single outlier with a tiny std); drop windows farther from it
@@ -295,11 +294,17 @@ def _pool_parameter(v: NDArray[np.float64], s: NDArray[np.float64], *,
         centre = float(np.median(v[s <= np.median(s)]))
         keep = np.abs(v - centre) <= reject * s
         if np.count_nonzero(keep) >= max(2, v.size // 2):
-            v, s, w = v[keep], s[keep], w[keep]
+            v, s = v[keep], s[keep]
+    # weights relative to the smallest std (in (0, 1]): 1/std^2 itself under- or overflows
+    # for extreme stds
+    scale = float(np.min(s))
+    with np.errstate(under='ignore'):
+        w = (scale / s) ** 2
     mean = float(np.sum(w * v) / np.sum(w))
-    std = float(1.0 / math.sqrt(float(np.sum(w))))
+    std = scale / math.sqrt(float(np.sum(w)))
     if v.size > 1:
-        chi2 = float(np.sum(w * (v - mean) ** 2))
+        with np.errstate(over='ignore', invalid='ignore'):
+            chi2 = float(np.sum(w * ((v - mean) / scale) ** 2))
         std *= max(1.0, math.sqrt(chi2 / (v.size - 1)))
     return mean, std
 
