@@ -187,13 +187,21 @@ def _ros_node(name: str) -> Iterator[Node]:
             rclpy.shutdown()
 
 
-def _publisher_qos(node: Node, topic: str) -> tuple[bool, bool]:
-    """(all publishers reliable, any publisher transient local) of a live topic."""
+def _publisher_qos(node: Node, topic: str) -> tuple[bool, bool] | None:
+    """(reliable, transient local) that match every publisher of a live topic.
+
+    A subscription asking for more than a publisher offers does not match it, so reliable
+    and transient local are asked for only when all publishers offer them (then a late
+    subscriber still gets a transient-local topic's last messages). None while the topic
+    has no publisher (it may be known from a subscriber only).
+    """
     from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 
     infos = node.get_publishers_info_by_topic(topic)
+    if not infos:
+        return None
     reliable = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
-    transient = any(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+    transient = all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
     return reliable, transient
 
 
@@ -236,9 +244,9 @@ def record(out: str | os.PathLike[str], *, topics: Sequence[str] = GALVO_TOPICS,
            ready: Callable[[], None] | None = None) -> RecordSummary:
     """Record topics of the live graph into a new bag until ``duration`` or Ctrl-C.
 
-    Topics are subscribed as soon as they appear in the graph (also late ones), raw, with
-    a QoS that matches their publishers (transient local when offered, so the last
-    ``ModalParameters`` is caught; best effort only when a publisher is best effort).
+    Topics are subscribed as soon as they have a publisher in the graph (also late ones),
+    raw, with a QoS that matches the publishers (transient local when all offer it, so the
+    last ``ModalParameters`` is caught; best effort when a publisher is best effort).
 
     Args:
         out: Bag directory to create.
@@ -281,7 +289,10 @@ def record(out: str | os.PathLike[str], *, topics: Sequence[str] = GALVO_TOPICS,
                         summary.types[topic] = ''
                         continue
                     msgtype = types[0]
-                    reliable, transient = _publisher_qos(node, topic)
+                    offered = _publisher_qos(node, topic)
+                    if offered is None:  # known from a subscriber only: wait for a publisher
+                        continue
+                    reliable, transient = offered
                     writer.add_topic(topic, msgtype, reliable=reliable,
                                      transient_local=transient)
                     _check_hash(node, topic, msgtype, writer, log)
@@ -469,22 +480,25 @@ def echo(topic: str, *, once: bool = False, as_json: bool = False,
     count = 0
     with _Stop() as stop, _ros_node('galvo_sysid_echo') as node:
         msgtype = None
+        offered = None
         said = False
-        while not stop.is_set() and msgtype is None:
+        while not stop.is_set():
             types = dict(node.get_topic_names_and_types()).get(name)
-            if types:
+            offered = _publisher_qos(node, name) if types else None
+            if types and offered is not None:  # a publisher, not only other subscribers
                 msgtype = types[0]
                 break
-            if timeout is not None and time.monotonic() - start > timeout:
+            elapsed = time.monotonic() - start
+            if timeout is not None and elapsed > timeout:
                 _say(log, f'echo: topic {name} did not appear within {timeout:g} s')
                 return 1
-            if not said and time.monotonic() - start > 1.0:
-                _say(log, f'echo: waiting for {name} to appear...')
+            if not said and elapsed > 1.0:
+                _say(log, f'echo: waiting for a publisher on {name}...')
                 said = True
             time.sleep(0.1)
-        if msgtype is None:
+        if msgtype is None or offered is None:
             return 0
-        reliable, transient = _publisher_qos(node, name)
+        reliable, transient = offered
 
         def callback(message: Any) -> None:
             nonlocal count

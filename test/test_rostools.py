@@ -216,3 +216,60 @@ def test_echo_timeout_is_one_line(venv_bin: Path) -> None:
     assert proc.returncode == 1
     assert proc.stderr.strip().splitlines() == [
         'echo: topic /no_such_topic did not appear within 1 s']
+
+
+LATCHED_PUBLISHER = """
+import time, rclpy
+from rclpy.qos import QoSProfile, ReliabilityPolicy, DurabilityPolicy
+from galvo_sysid_msgs.msg import ModalParameters
+rclpy.init()
+node = rclpy.create_node('latched_publisher')
+qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+pub = node.create_publisher(ModalParameters, 'latched_test', qos)
+pub.publish(ModalParameters(window_index=42, moves=7))
+time.sleep(30)
+"""
+
+
+LISTENER = """
+import time, rclpy
+from galvo_sysid_msgs.msg import ModalParameters
+rclpy.init()
+node = rclpy.create_node('plain_listener')
+node.create_subscription(ModalParameters, 'latched_test', lambda m: None, 10)
+end = time.monotonic() + 40
+while time.monotonic() < end:
+    rclpy.spin_once(node, timeout_sec=0.1)
+"""
+
+
+def test_echo_and_record_wait_for_a_publisher(venv_bin: Path, tmp_path: Path) -> None:
+    """A topic known only from a subscriber must not fix the QoS before a publisher shows."""
+    import sys
+
+    cli = str(venv_bin / 'galvo-sysid')
+    bag = tmp_path / 'latched'
+    with processes(tmp_path) as procs:
+        # a subscriber-only endpoint makes the topic visible before any publisher exists
+        procs['listener'] = Proc([sys.executable, '-c', LISTENER], tmp_path, 'listener')
+        procs['record'] = Proc([cli, 'record', '--out', str(bag), '/latched_test'], tmp_path,
+                               'record')
+        procs['echo'] = Proc([cli, 'echo', '/latched_test', '--once', '--json'], tmp_path,
+                             'echo')
+        time.sleep(5.0)  # both have seen the topic, from the listener only
+        # the message is published at once, before the new publisher is matched with anyone:
+        # only transient-local subscriptions get it
+        procs['publisher'] = Proc([sys.executable, '-c', LATCHED_PUBLISHER], tmp_path, 'pub')
+        echo = procs['echo']
+        assert echo.wait(40) == 0, echo.stderr
+        wait_for(lambda: 'subscribed to /latched_test' in procs['record'].stderr, 30,
+                 'the recorder to subscribe')
+        time.sleep(1.0)
+    assert json.loads(echo.stdout)['window_index'] == 42
+    from galvo_sysid.bagio import BagReader
+
+    with BagReader(bag) as reader:
+        info = {t.topic: t for t in reader.info.topics}
+        assert info['/latched_test'].count == 1
+        assert info['/latched_test'].transient_local
