@@ -250,3 +250,18 @@ def wait_matched(graph: Graph, pubs: Iterable[Any], *, count: int = 1,
     items = list(pubs)
     graph.spin_until(lambda: all(p.get_subscription_count() >= count for p in items), timeout,
                      'subscribers to match')
+
+
+def subscriber_ids(graph: Graph, topic: str) -> set[bytes]:
+    """Endpoint gids of the subscriptions on ``topic`` (a killed one stays until its lease
+    runs out, so a count alone cannot tell a restarted node from the dead one)."""
+    return {bytes(info.endpoint_gid) for info in
+            graph.node.get_subscriptions_info_by_topic(topic)}
+
+
+def wait_new_subscribers(graph: Graph, topics: Iterable[str], old: dict[str, set[bytes]], *,
+                         timeout: float = 30) -> None:
+    """Wait until each topic has a subscription that is not in ``old[topic]``."""
+    names = list(topics)
+    graph.spin_until(lambda: all(subscriber_ids(graph, t) - old.get(t, set()) for t in names),
+                     timeout, f'new subscribers on {names}')
