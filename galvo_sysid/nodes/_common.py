@@ -33,6 +33,7 @@ __all__ = [
     'DIAGNOSTICS_TOPIC',
     'DRIFT_TOPIC',
     'ENCODER_TOPIC',
+    'RELIABILITY',
     'RESULT_TOPIC',
     'ParamSpec',
     'ParameterSet',
@@ -52,13 +53,22 @@ DIAGNOSTICS_TOPIC = '/diagnostics'
 """Topic names: relative (a namespace per scanner prefixes them), except /diagnostics."""
 
 
-def moves_qos(depth: int) -> QoSProfile:
-    """Reliable, volatile; ``depth`` messages kept (0: keep all)."""
+RELIABILITY = ('reliable', 'best_effort')
+"""Choices of the move topics' reliability (``qos_reliability`` parameters)."""
+
+
+def moves_qos(depth: int, *, reliability: str = 'reliable') -> QoSProfile:
+    """Volatile; ``depth`` messages kept (0: keep all); reliable or best effort.
+
+    A best-effort subscription also takes a reliable publisher's messages (lost ones are not
+    resent: for a lossy link); a best-effort publisher only reaches best-effort subscribers.
+    """
+    policy = ReliabilityPolicy.BEST_EFFORT if reliability == 'best_effort' \
+        else ReliabilityPolicy.RELIABLE
     if depth <= 0:
-        return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+        return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=policy,
                           durability=DurabilityPolicy.VOLATILE)
-    return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+    return QoSProfile(depth=depth, reliability=policy, durability=DurabilityPolicy.VOLATILE)
 
 
 def results_qos(depth: int = 10) -> QoSProfile:

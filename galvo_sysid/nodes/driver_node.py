@@ -34,6 +34,7 @@ from galvo_sysid.messages import fill, fill_header, move_samples_fields
 from galvo_sysid.nodes._common import (
     CURRENT_TOPIC,
     ENCODER_TOPIC,
+    RELIABILITY,
     ParameterSet,
     ParamSpec,
     logger,
@@ -67,6 +68,8 @@ PARAMETERS = (
     ParamSpec('exit_when_done', False, 'exit once the schedule is done (cycles > 0)'),
     ParamSpec('qos_depth', 1000, 'publisher queue depth (0: keep all)', 0, 1_000_000,
               read_only=True),
+    ParamSpec('qos_reliability', 'reliable', 'publisher QoS reliability (best_effort reaches '
+              'only best-effort subscribers)', choices=RELIABILITY, read_only=True),
     ParamSpec('drift.parameter', '', 'plant parameter that drifts ("" for none)',
               choices=('', *_PLANT_NAMES)),
     ParamSpec('drift.rate', 0.0, 'relative change per drift.unit (e.g. -0.001)', -1.0, 1.0),
@@ -156,7 +159,7 @@ class DriverNode(Node):
         for line in self.changes.apply(v, {n for n in v if n.startswith(('drift.', 'step.',
                                                                           'effects'))}):
             self.log.info(line)
-        qos = moves_qos(v['qos_depth'])
+        qos = moves_qos(v['qos_depth'], reliability=v['qos_reliability'])
         self.current = self.create_publisher(MoveSamples, CURRENT_TOPIC, qos)
         self.encoder = self.create_publisher(MoveSamples, ENCODER_TOPIC, qos)
         self.published = 0

@@ -25,6 +25,7 @@ from galvo_sysid.nodes._common import (
     CURRENT_TOPIC,
     DIAGNOSTICS_TOPIC,
     ENCODER_TOPIC,
+    RELIABILITY,
     RESULT_TOPIC,
     ParameterSet,
     ParamSpec,
@@ -67,6 +68,9 @@ PARAMETERS = (
               read_only=True),
     ParamSpec('qos_depth', 1000, 'input queue depth per topic (0: keep all)', 0, 1_000_000,
               read_only=True),
+    ParamSpec('qos_reliability', 'reliable', 'input QoS reliability (best_effort for a lossy '
+              'link: takes reliable and best-effort publishers, lost moves are not resent)',
+              choices=RELIABILITY, read_only=True),
     ParamSpec('warnings_per_second', 20, 'most warning lines a second (the rest summed up)',
               1, 10_000),
     ParamSpec('stats_period', 30.0, 'log counters every this many seconds (0: never)',
@@ -102,7 +106,7 @@ class SysidNode(Node):
                               warn=self.log.warning, windower=self._windower_args(v),
                               queue_size=v['queue_size'], processes=v['fit_processes'],
                               warnings_per_second=v['warnings_per_second'])
-        qos = moves_qos(v['qos_depth'])
+        qos = moves_qos(v['qos_depth'], reliability=v['qos_reliability'])
         self.create_subscription(MoveSamples, CURRENT_TOPIC,
                                  functools.partial(self._on_half, signal='current'), qos)
         self.create_subscription(MoveSamples, ENCODER_TOPIC,
