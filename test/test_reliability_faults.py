@@ -30,6 +30,7 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from galvo_sysid_msgs.msg import DriftStatus, ModalParameters, MoveSamples
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_graph import (
     MOVES_QOS,
     RESULTS_QOS,
@@ -225,13 +226,19 @@ def test_sysid_killed_mid_window_restarts_without_mixing(graph: Graph) -> None:
 
 # -- messages lost ---------------------------------------------------------------------------
 
-def test_lost_messages_windows_complete_from_what_arrived(graph: Graph) -> None:
-    ns = '/fault_loss'
+@pytest.mark.parametrize('reliability', ['reliable', 'best_effort'])
+def test_lost_messages_windows_complete_from_what_arrived(graph: Graph,
+                                                          reliability: str) -> None:
+    ns = f'/fault_loss_{reliability}'
     window_size = 8
     results = Results(graph, ns)
-    pubs = _publishers(graph, ns)
+    qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE
+                     if reliability == 'reliable' else ReliabilityPolicy.BEST_EFFORT)
+    pubs = {s: graph.node.create_publisher(MoveSamples, f'{ns}/galvo/{s}', qos)
+            for s in ('current', 'encoder')}
     sysid = _sysid(graph, ns, 'sysid', '-p', f'window_size:={window_size}',
-                   '-p', 'fit_processes:=0', '-p', 'pair_timeout:=0.5')
+                   '-p', 'fit_processes:=0', '-p', 'pair_timeout:=0.5',
+                   '-p', f'qos_reliability:={reliability}')
     msgs = move_messages(GalvoSimulator(seed=31).moves(angles=[0.9], moves_per_angle=70),
                          t0=700.0)
     rng = np.random.default_rng(5)
@@ -254,21 +261,28 @@ def test_lost_messages_windows_complete_from_what_arrived(graph: Graph) -> None:
     assert len(expected) >= 4
 
     wait_matched(graph, pubs.values())
-    _publish(pubs, sent)
-    graph.spin_until(lambda: len(results) >= len(expected), 30, 'the windows that can complete')
+    for s, m in sent:
+        pubs[s].publish(m)
+        graph.spin_for(0.0005)  # about 1,000 messages/s: a best-effort link keeps up
 
-    def all_said() -> bool:
+    def all_said() -> bool:  # every half received is used, set aside or (none) waiting
         c = counters(sysid.text())
-        return bool(c) and c[-1]['moves_rejected'] == unpaired and c[-1]['pending_halves'] == 0
-    graph.spin_until(all_said, 15, 'every orphaned half set aside')
+        return len(c) >= 2 and c[-1]['pending_halves'] == 0 and c[-1]['halves_received'] > 0 and \
+            c[-1] == c[-2]
+    graph.spin_until(all_said, 30, 'every orphaned half set aside')
     graph.spin_for(0.5)
+    last = counters(sysid.text())[-1]
     got = sorted((round(m.target_angle, 6), round(_stamp(m), 6), m.moves) for m in results.msgs)
     want = sorted((round(w.target_angle, 6), round(w.last_stamp, 6), w.moves) for w in expected)
-    assert got == want
     assert all(m.moves == window_size for m in results.msgs)
-    last = counters(sysid.text())[-1]
-    assert last['halves_received'] == len(sent)
     assert 'unpaired' in sysid.text()
+    if last['halves_received'] == len(sent):  # the link itself lost nothing (the rule here)
+        assert got == want
+        assert last['moves_rejected'] == unpaired
+    else:  # a best-effort link lost some more: windows complete from what arrived
+        assert reliability == 'best_effort', last
+        lost = len(sent) - last['halves_received']
+        assert len(want) - lost <= len(got) <= len(want)
 
 
 # -- a replay looping back --------------------------------------------------------------------
