@@ -191,7 +191,8 @@ def test_live_identification_drift_stale_and_recovery(graph: Graph) -> None:
     for msg in results[before:]:
         assert msg.moves == 100
         assert abs(rel(msg.natural_frequencies[0], REF.natural_frequencies[0])) < 0.002
-    assert results[before].window_index == 0  # a new process numbers its windows anew
+    # a new process numbers its windows anew (two fit workers may publish 1 before 0)
+    assert min(m.window_index for m in results[before:]) == 0
     assert time.monotonic() - killed < 30
 
     # 3. the plant changes live: omega_1 steps down 3 %
