@@ -17,7 +17,7 @@ forward and back) and replayed with fresh move_ids and advancing stamps. Reporte
   and along the run.
 
 Usage: ``.venv/bin/python benchmarks/sysid_load.py [--rate 1000] [--duration 60]
-[--window-size 100] [--fit-processes 2] [--angles 0.3 0.9 2.1]``.
+[--window-size 100] [--fit-processes 2] [--angles 0.3 0.9 2.1] [--qos best_effort]``.
 """
 
 from __future__ import annotations
@@ -96,7 +96,8 @@ def run(args: argparse.Namespace, workdir: Path) -> dict[str, Any]:
     proc = subprocess.Popen(
         [str(Path(sys.executable).parent / 'sysid'), '--ros-args', '-r', f'__ns:={NS}',
          '-p', f'window_size:={args.window_size}', '-p', f'fit_processes:={args.fit_processes}',
-         '-p', 'stats_period:=1.0', '-p', 'diagnostics_period:=0.0'],
+         '-p', 'stats_period:=1.0', '-p', 'diagnostics_period:=0.0',
+         '-p', f'qos_reliability:={args.qos}'],
         stdout=log, stderr=subprocess.STDOUT)
     context = Context()
     rclpy.init(context=context)
@@ -121,7 +122,8 @@ def run(args: argparse.Namespace, workdir: Path) -> dict[str, Any]:
 def _measure(args: argparse.Namespace, node: Any, executor: SingleThreadedExecutor,
              proc: subprocess.Popen[bytes], cycle: list[tuple[float, Any, Any]],
              log_path: Path) -> dict[str, Any]:
-    qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+    qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE
+                     if args.qos == 'reliable' else ReliabilityPolicy.BEST_EFFORT)
     pubs = [node.create_publisher(MoveSamples, f'{NS}/galvo/{s}', qos)
             for s in ('current', 'encoder')]
     arrivals: dict[int, float] = {}  # stamp [ns] of a window's last move -> arrival time
@@ -222,6 +224,8 @@ def main() -> int:
     parser.add_argument('--window-size', type=int, default=100)
     parser.add_argument('--fit-processes', type=int, default=2)
     parser.add_argument('--angles', type=float, nargs='+', default=[0.3, 0.9, 2.1])
+    parser.add_argument('--qos', choices=['reliable', 'best_effort'], default='reliable',
+                        help="the move topics' reliability (publisher and sysid)")
     parser.add_argument('--warmup', type=float, default=6.0, help='seconds before publishing')
     parser.add_argument('--settle', type=float, default=15.0,
                         help='seconds to wait for the last results')
@@ -232,8 +236,8 @@ def main() -> int:
     os.environ.setdefault('ROS_LOG_DIR', str(workdir / 'ros'))
     print(f'sysid load: {args.rate:g} moves/s for {args.duration:g} s, windows of '
           f'{args.window_size} moves over {len(args.angles)} angles (both signs), '
-          f'{args.fit_processes} fit processes; {os.cpu_count()} CPUs, load average before '
-          f'{os.getloadavg()[0]:.2f}; log in {workdir}', flush=True)
+          f'{args.fit_processes} fit processes, {args.qos} QoS; {os.cpu_count()} CPUs, '
+          f'load average before {os.getloadavg()[0]:.2f}; log in {workdir}', flush=True)
     r = run(args, workdir)
     rows = [
         ('moves published (rate achieved)',
