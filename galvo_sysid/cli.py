@@ -36,7 +36,10 @@ PROG = 'galvo-sysid'
 
 PLUGINS = ('galvo_sysid.discrepancy_cli',)
 """Modules that add subcommands if present: each defines ``register(subparsers)``, which adds
-its parser(s) and sets ``func`` (``args -> exit code``) as the parser default."""
+its parser(s) and sets ``func`` (``args -> exit code``) as the parser default. ``register``
+runs for every command (also ``echo`` and ``--help``), so it should import nothing heavy:
+the numerics belong in ``func``. Errors derived from ``GalvoSysidError`` raised by ``func``
+become one line on stderr and exit code 1."""
 
 _PSI = 0.3
 
