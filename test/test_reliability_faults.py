@@ -137,13 +137,18 @@ def test_driver_stops_watchdog_goes_stale_and_recovers(graph: Graph) -> None:
         driver.popen.send_signal(signal.SIGSTOP)
         t_stale = graph.spin_until(lambda: level() == 3, 3 * stale_timeout + 5, 'STALE')
         last_result = results.items[-1][0]
+        print(f'driver hung: STALE {t_stale - last_result:.2f} s after the last result '
+              f'(stale_timeout {stale_timeout} s)')
         assert stale_timeout - 0.3 < t_stale - last_result < stale_timeout + 0.8
         graph.spin_until(lambda: verdicts[-1].level == DriftStatus.STALE, 5, 'DriftStatus STALE')
         n = len(results)
 
         # 2. it resumes: OK again with the next result
         driver.popen.send_signal(signal.SIGCONT)
-        graph.spin_until(lambda: len(results) > n and level() == 0, 20, 'OK after resuming')
+        t_cont = time.monotonic()
+        t_ok = graph.spin_until(lambda: len(results) > n and level() == 0, 20,
+                                'OK after resuming')
+        print(f'driver resumed: OK again after {t_ok - t_cont:.2f} s')
     finally:
         driver.popen.send_signal(signal.SIGCONT)
 
@@ -153,8 +158,12 @@ def test_driver_stops_watchdog_goes_stale_and_recovers(graph: Graph) -> None:
     t_stale = graph.spin_until(lambda: level() == 3, 3 * stale_timeout + 5, 'STALE again')
     assert t_stale - t_stop < stale_timeout + 1.0
     n = len(results)
+    t_new = time.monotonic()
     graph.start('galvo_driver', 'driver2', *driver_args)
-    graph.spin_until(lambda: len(results) > n and level() == 0, 30, 'OK with a new driver')
+    t_ok = graph.spin_until(lambda: len(results) > n and level() == 0, 30,
+                            'OK with a new driver')
+    print(f'driver exited: STALE after {t_stale - t_stop:.2f} s; a new driver process: OK '
+          f'again after {t_ok - t_new:.2f} s (process start and discovery included)')
     for m in results.msgs:
         assert m.moves == 20
         assert abs(m.natural_frequencies[0] / OMEGA_1 - 1) < 0.003
