@@ -444,6 +444,10 @@ class _Problem:
         self.yf_raw = second_difference(y)[_FIRST_ROW:]
         self.n_linear = 1 + n_modes + 2 * n_modes + 2
         self.n_eval = 0
+        # (current, encoder, regressors of the moves' deviations, their filtered encoder):
+        # see _per_move_deviations
+        self.move_data: tuple[NDArray[np.float64], NDArray[np.float64], _Regressors,
+                              NDArray[np.float64]] | None = None
         self.set_whitening(None)
 
     def set_whitening(self, a: NDArray[np.float64] | None) -> None:
@@ -881,14 +885,27 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
 def _per_move_deviations(prob: _Problem, x: NDArray[np.float64], coef: NDArray[np.float64],
                          cur: NDArray[np.float64], enc: NDArray[np.float64]) -> NDArray[
                              np.float64]:
-    """Each move's filtered residual minus the window mean (unwhitened rows), (M, rows)."""
+    """Each move's filtered residual minus the window mean (unwhitened rows), (M, rows).
+
+    By linearity this is the residual of the moves' deviations from the window mean, whose
+    forced response is one convolution with the model's combined impulse response; the
+    deviations' transforms are computed once per window (cached on ``prob``).
+    """
     n = prob.n_modes
     omega, zeta, lag = prob.unpack(x)
-    regs = _Regressors(cur, sample_period=prob.t, delay=prob.regs.delay,
-                       fraction=prob.regs.fraction)
-    forced = np.tensordot(coef[: 1 + n], regs.all(omega, zeta, lag), axes=1)
-    per_move = (second_difference(enc) - forced)[:, _FIRST_ROW:]
-    return np.asarray(per_move - per_move.mean(axis=0), dtype=np.float64)
+    cached = prob.move_data
+    if cached is None or cached[0] is not cur or cached[1] is not enc:
+        regs = _Regressors(cur - cur.mean(axis=0), sample_period=prob.t,
+                           delay=prob.regs.delay, fraction=prob.regs.fraction)
+        cached = (cur, enc, regs, second_difference(enc - enc.mean(axis=0)))
+        prob.move_data = cached
+    _, _, regs, enc_f = cached
+    h_lag = regs.lag_impulse(lag)
+    h = coef[1: 1 + n] @ regs.mode_impulses(omega, zeta, lag, h_lag=h_lag) \
+        + coef[0] * lag * h_lag
+    forced = regs.convolve(h[None, :])[0] \
+        + coef[0] * (regs.rigid_double - lag * regs.rigid_single)
+    return np.asarray((enc_f - forced)[:, _FIRST_ROW:], dtype=np.float64)
 
 
 def _whitening_filter(dev: NDArray[np.float64], order: int,
@@ -996,6 +1013,9 @@ class _JointProblem:
         self._key: bytes | None = None
         self._cache: tuple[NDArray[np.float64], NDArray[np.float64]] = (np.zeros(0),
                                                                           np.zeros(0))
+        # per window (phi, Q, R, column scale) of the nuisance QR, and Q of the shared columns
+        self._parts: tuple[list[tuple[NDArray[np.float64], ...]], NDArray[np.float64]] = (
+            [], np.zeros((0, 0)))
 
     def unpack(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64],
                                                       NDArray[np.float64], float]:
@@ -1013,25 +1033,55 @@ class _JointProblem:
         n = self.n_modes
         omega, zeta, lag = self.unpack(x)
         f_parts, y_parts = [], []
+        parts: list[tuple[NDArray[np.float64], ...]] = []
         for prob, wt in zip(self.problems, self.weights, strict=True):
             phi = prob.columns(omega, zeta, lag)
             nuis = phi[:, 1 + n:]
             scale = np.linalg.norm(nuis, axis=0)
             scale[scale == 0] = 1.0
-            q, _ = qr(nuis / scale, mode='economic', check_finite=False)
+            q, r = qr(nuis / scale, mode='economic', check_finite=False)
             f_parts.append(wt * (phi[:, : 1 + n] - q @ (q.T @ phi[:, : 1 + n])))
             y_parts.append(wt * (prob.yf - q @ (q.T @ prob.yf)))
+            parts.append((phi, q, r, scale))
         f_all = np.vstack(f_parts)
         y_all = np.concatenate(y_parts)
         scale = np.linalg.norm(f_all, axis=0)
         scale[scale == 0] = 1.0
-        shared = np.linalg.lstsq(f_all / scale, y_all, rcond=None)[0] / scale
+        q_f, r_f = qr(f_all / scale, mode='economic', check_finite=False)
+        shared = solve_triangular(r_f, q_f.T @ y_all, check_finite=False) / scale
         self._key = key
         self._cache = (shared, y_all - f_all @ shared)
+        self._parts = (parts, q_f)
         return self._cache
 
     def residual(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         return self.solve(x)[1] / self.y_scale
+
+    def jacobian(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Kaufman's variable-projection Jacobian of :meth:`residual`.
+
+        ``-P (d Phi / d x_j) c`` with P the projection onto the orthogonal complement of all
+        linear columns (each window's nuisance, then the shared columns left after it), c the
+        coefficients at x; the Golub-Pereyra term that Kaufman drops is second order at the
+        optimum.
+        """
+        shared = self.solve(x)[0]
+        parts, q_f = self._parts
+        n = self.n_modes
+        v_parts = []
+        for prob, wt, (phi, q, r, scale) in zip(self.problems, self.weights, parts,
+                                                 strict=True):
+            nuis = solve_triangular(r, q.T @ (prob.yf - phi[:, : 1 + n] @ shared),
+                                    check_finite=False) / scale
+            coef = np.concatenate([shared, nuis])
+            derivs = prob.column_derivatives(x, phi)
+            v = np.empty((phi.shape[0], len(derivs)))
+            for j, (idx, dphi) in enumerate(derivs):
+                v[:, j] = dphi @ coef[idx]
+            v_parts.append(wt * (v - q @ (q.T @ v)))
+        v_all = np.vstack(v_parts)
+        v_all -= q_f @ (q_f.T @ v_all)
+        return np.asarray(-v_all / self.y_scale, dtype=np.float64)
 
     def coefficients(self, x: NDArray[np.float64]) -> list[NDArray[np.float64]]:
         """Each window's full coefficient vector [shared, its nuisance] at x."""
@@ -1144,8 +1194,8 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
 
     def polish(x0: NDArray[np.float64]) -> Any:
         try:
-            return least_squares(joint.residual, x0, bounds=(lower, upper), x_scale='jac',
-                                 max_nfev=max_nfev, method='trf')
+            return least_squares(joint.residual, x0, jac=joint.jacobian, bounds=(lower, upper),
+                                 x_scale='jac', max_nfev=max_nfev, method='trf')
         except (ValueError, LinAlgError) as exc:
             raise IdentificationError(f'joint refined fit failed: {exc}') from exc
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 from openloop_data import move_current, open_loop_window
@@ -180,3 +182,55 @@ def test_bad_input_raises_typed_errors() -> None:
         refine_fit(cur, enc, sample_period=TAU, initial=REFERENCE_MODEL, damping_start=0.9)
     with pytest.raises(ConfigurationError):
         modal_regressors(cur, (1e5,), (0.01, 0.02), sample_period=TAU)
+
+
+def _joint_problem(windows: list[tuple[np.ndarray, np.ndarray]]) -> Any:
+    from galvo_sysid.refine import _JointProblem, _Problem
+
+    problems = [_Problem(c.mean(axis=0), e.mean(axis=0), sample_period=TAU, delay=1,
+                         fraction=0.0, n_modes=3, fixed_lag=None) for c, e in windows]
+    return _JointProblem(problems, [1.0, 2.0][: len(problems)])
+
+
+@pytest.mark.parametrize('offset', [0.0, 0.002])
+def test_joint_jacobian_matches_finite_differences(offset: float) -> None:
+    # Kaufman's Jacobian is exact at a zero residual (noise-free data at the truth) and off it
+    # by a term proportional to the residual.
+    joint: Any = _joint_problem([noise_free(PSI), noise_free(-3 * PSI)])
+    truth = joint.pack(REFERENCE_MODEL.natural_frequencies, REFERENCE_MODEL.damping_ratios,
+                       0.6 * TAU)
+    x = truth + offset * np.arange(1, truth.size + 1) / truth.size
+    jac = joint.jacobian(x)
+    h = 1e-6
+    numeric = np.column_stack([(joint.residual(x + h * e) - joint.residual(x - h * e)) / (2 * h)
+                               for e in np.eye(x.size)])
+    err = np.linalg.norm(jac - numeric, axis=0) / np.linalg.norm(numeric, axis=0)
+    if offset == 0:
+        assert np.all(err < 1e-3), err  # the columns' own one-sided differences
+    else:  # the dropped term is first order in the residual; the gradient stays close
+        assert np.all(err < 0.25), err
+        r = joint.residual(x)
+        g, g_num = jac.T @ r, numeric.T @ r
+        assert g @ g_num / np.linalg.norm(g) / np.linalg.norm(g_num) > 0.99
+
+
+def test_per_move_deviations_are_each_moves_residual_minus_the_mean() -> None:
+    from galvo_sysid.refine import _FIRST_ROW, _per_move_deviations, _Problem
+
+    cur, enc = simulate_window(PSI, moves=6, seed=3)
+    enc = enc - enc[:, :1]
+    prob = _Problem(cur.mean(axis=0), enc.mean(axis=0), sample_period=TAU, delay=1,
+                    fraction=0.0, n_modes=3, fixed_lag=None)
+    x = prob.pack(REFERENCE_MODEL.natural_frequencies, REFERENCE_MODEL.damping_ratios,
+                  0.6 * TAU)
+    coef = prob.factor(x)[4]
+    dev = _per_move_deviations(prob, x, coef, cur, enc)
+    # the plain way: each move's own regressors
+    regs = modal_regressors(cur, REFERENCE_MODEL.natural_frequencies,
+                            REFERENCE_MODEL.damping_ratios, sample_period=TAU,
+                            lag_time_constant=0.6 * TAU)
+    per_move = (second_difference(enc) - np.tensordot(coef[:4], regs, axes=1))[:, _FIRST_ROW:]
+    expected = per_move - per_move.mean(axis=0)
+    assert dev.shape == expected.shape == (6, 510)
+    np.testing.assert_allclose(dev, expected, atol=1e-9 * np.abs(per_move).max())
+    assert np.abs(expected).max() > 1e-3 * np.abs(per_move).max()  # not trivially zero
