@@ -139,7 +139,7 @@ def test_driver_stops_watchdog_goes_stale_and_recovers(graph: Graph) -> None:
         last_result = results.items[-1][0]
         print(f'driver hung: STALE {t_stale - last_result:.2f} s after the last result '
               f'(stale_timeout {stale_timeout} s)')
-        assert stale_timeout - 0.3 < t_stale - last_result < stale_timeout + 0.8
+        assert stale_timeout - 0.3 < t_stale - last_result < stale_timeout + 1.2
         graph.spin_until(lambda: verdicts[-1].level == DriftStatus.STALE, 5, 'DriftStatus STALE')
         n = len(results)
 
