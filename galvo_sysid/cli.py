@@ -202,7 +202,9 @@ def _add_identify(sub: Any) -> None:
             '  drift level), the pooled estimate with standard deviations, the rejected moves.\n'
             '  --json prints one object {"windows": [...], "pooled": {...}, "rejected": [...]}\n'
             '  whose window fields are named as in ModalParameters, plus "partial" and\n'
-            '  "drift" (level OK/WARN/ERROR and deviations).\n\n'
+            '  "drift" (level OK/WARN/ERROR and deviations); "pooled" also says "pooling"\n'
+            '  (joint or inverse-variance), "pooled_windows" and "pooling_note" (why the\n'
+            '  joint fit was not used, else null).\n\n'
             'examples:\n'
             '  galvo-sysid identify bags/nominal\n'
             "  galvo-sysid identify bags/drifting --json | jq '.windows[].drift.level'\n"
@@ -237,6 +239,10 @@ def _add_identify(sub: Any) -> None:
     p.add_argument('--jobs', type=_positive(int), default=None, metavar='N',
                    help='windows fitted in parallel (default: one per CPU); the numbers do '
                         'not depend on it')
+    p.add_argument('--pooling', choices=('joint', 'inverse-variance'), default=None,
+                   help='pooled estimate: one joint fit to all windows (default for refined; '
+                        'sharpest) or the inverse-variance combination of the windows '
+                        '(default and only choice for the paper methods)')
     p.set_defaults(func=_cmd_identify)
 
 
@@ -412,7 +418,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                              window_size=int(sysid['window_size']),
                              min_partial=args.min_partial, namespace=args.namespace,
                              monitor=monitor, na=int(sysid['na']), nb=int(sysid['nb']),
-                             windower=sysid, jobs=args.jobs or _cpus(), progress=progress)
+                             windower=sysid, jobs=args.jobs or _cpus(),
+                             pooling=args.pooling, progress=progress)
     finally:
         progress.close()
     if args.json:
@@ -482,7 +489,11 @@ def format_identification(found: BagIdentification) -> str:
         pooled = found.pooled
         values = pooled.model.parameters()
         stds = pooled.std_by_name()
-        lines.append(f'pooled over {len(found.windows)} window(s), {pooled.moves} moves:')
+        how = 'one joint fit' if found.pooling == 'joint' else 'inverse-variance combination'
+        lines.append(f'pooled over {found.pooled_windows} window(s), {pooled.moves} moves '
+                     f'({how}):')
+        if found.pooling_note:
+            lines.append(f'  note: {found.pooling_note}')
         for n in names:
             dev = 100 * (values[n] - ref[n]) / ref[n]
             lines.append(f'  {n:<8} {values[n]:12.6g} +- {stds.get(n, math.nan):<10.3g} '

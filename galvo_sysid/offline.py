@@ -8,6 +8,14 @@ windows of ``window_size`` moves per signed target angle,
 :class:`~galvo_sysid.drift.DriftMonitor` judges it. At the end of the bag, every unfinished
 window holding at least ``min_partial`` moves (default: half a window) is identified too and
 marked partial. Moves that cannot be used are listed with the reason; the rest is used.
+
+The pooled estimate (the bag's plant, from all windows; the nodes have no such thing) is, for
+the refined method, :func:`~galvo_sysid.identify.identify_joint`: one fit of the modal model
+to the identified windows at once, started from
+:func:`~galvo_sysid.identify.pool_results` (the inverse-variance combination of the windows'
+results), several times sharper on the weakly excited third mode. If the joint fit fails,
+the inverse-variance combination is reported instead, with the reason. For the paper
+methods the pooled estimate is the inverse-variance combination.
 """
 
 from __future__ import annotations
@@ -36,7 +44,9 @@ if TYPE_CHECKING:
     from galvo_sysid.pairing import Rejection, Window
 
 __all__ = [
+    'JOINT_WINDOWS',
     'METHODS',
+    'POOLINGS',
     'WINDOWER_PARAMETERS',
     'BagIdentification',
     'WindowResult',
@@ -48,6 +58,13 @@ __all__ = [
 
 METHODS = ('refined', 'paper-A', 'paper-B')
 """Identification methods ``galvo-sysid identify --method`` accepts."""
+
+POOLINGS = ('joint', 'inverse-variance')
+"""Pooled estimates: one joint fit to the windows (refined method only), or the
+inverse-variance combination of the windows' results."""
+
+JOINT_WINDOWS = 64
+"""Windows held for the joint fit at most (about 0.8 MB each for 100 moves of 512 samples)."""
 
 WINDOWER_PARAMETERS = ('window_size', 'samples', 'max_samples', 'pair_timeout', 'time_jump',
                        'max_pending', 'max_windows', 'max_buffered_samples')
@@ -198,6 +215,11 @@ class BagIdentification:
         pooled: Pooled estimate over all windows (None without windows).
         rejected: Set-aside moves and messages, JSON-ready (see :func:`rejection_to_dict`).
         moves: Move halves read from the bag (current and encoder messages) / 2.
+        pooling: How ``pooled`` was made: ``'joint'`` or ``'inverse-variance'`` (see
+            :data:`POOLINGS`; ``''`` without windows).
+        pooled_windows: Windows that went into ``pooled``.
+        pooling_note: Why the pooling is not the one asked for (e.g. the joint fit failed),
+            else None.
     """
 
     info: BagInfo
@@ -207,12 +229,24 @@ class BagIdentification:
     pooled: IdentificationResult | None
     rejected: tuple[dict[str, Any], ...]
     moves: float
+    pooling: str = ''
+    pooled_windows: int = 0
+    pooling_note: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """The ``--json`` object: ``{"windows": [...], "pooled": {...}, "rejected": [...]}``."""
+        """The ``--json`` object: ``{"windows": [...], "pooled": {...}, "rejected": [...]}``.
+
+        ``pooled`` holds the result's fields plus ``pooling``, ``pooled_windows`` and
+        ``pooling_note``.
+        """
+        pooled = None
+        if self.pooled is not None:
+            pooled = self.pooled.to_dict()
+            pooled.update(pooling=self.pooling, pooled_windows=self.pooled_windows,
+                          pooling_note=self.pooling_note)
         return {
             'windows': [w.to_dict() for w in self.windows],
-            'pooled': None if self.pooled is None else self.pooled.to_dict(),
+            'pooled': pooled,
             'rejected': list(self.rejected),
         }
 
@@ -221,7 +255,8 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
                  window_size: int = 100, min_partial: int | None = None,
                  namespace: str | None = None, monitor: DriftMonitor | None = None,
                  na: int = 15, nb: int = 15, windower: Mapping[str, Any] | None = None,
-                 jobs: int = 1,
+                 jobs: int = 1, pooling: str | None = None,
+                 joint_windows: int = JOINT_WINDOWS,
                  progress: Callable[[int, int], None] | None = None) -> BagIdentification:
     """Identify every window of moves in a bag (see the module docs for the path taken).
 
@@ -241,6 +276,10 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
         jobs: Windows fitted in parallel by this many forked processes (1: in this process).
             The results do not depend on it: each window's fit is the same function call,
             and the drift monitor still sees the windows in order.
+        pooling: ``'joint'`` (default for ``'refined'``) or ``'inverse-variance'`` (default,
+            and the only choice, for the paper methods); see the module docs.
+        joint_windows: Windows held for the joint fit at most (memory): beyond, the oldest
+            window of the target angle holding the most is let go, so every angle stays in.
         progress: Called as ``progress(messages_done, messages_total)`` while reading.
 
     Raises:
@@ -248,7 +287,6 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
         ConfigurationError: Unknown method or bad window settings.
     """
     from galvo_sysid.drift import DriftMonitor
-    from galvo_sysid.identify import pool_results
     from galvo_sysid.online import fit_window
     from galvo_sysid.pairing import MoveWindower
 
@@ -262,6 +300,16 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
     if int(jobs) < 1:
         msg = f'jobs must be >= 1, got {jobs}'
         raise ConfigurationError(msg)
+    pooling = ('joint' if method == 'refined' else 'inverse-variance') if pooling is None \
+        else pooling
+    if pooling not in POOLINGS or (pooling == 'joint' and method != 'refined'):
+        msg = (f'pooling {pooling!r} is not possible with method {method!r}; choose '
+               f'{"one of " + ", ".join(POOLINGS) if method == "refined" else "inverse-variance"}')
+        raise ConfigurationError(msg)
+    if int(joint_windows) < 1:
+        msg = f'joint_windows must be >= 1, got {joint_windows}'
+        raise ConfigurationError(msg)
+    kept: list[Window] = []  # the joint fit's windows
     settings = {k: v for k, v in dict(windower or {}).items() if k in WINDOWER_PARAMETERS}
     settings['window_size'] = window_size
     pairer = MoveWindower(**settings)
@@ -289,6 +337,8 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
             verdict = judge.assess(result, window_index=window.index)
             windows.append(WindowResult(window.index, window.target_angle, window.partial,
                                         window.first_stamp, window.last_stamp, result, verdict))
+            if pooling == 'joint':
+                _keep(kept, window, limit=int(joint_windows))
 
     with contextlib.ExitStack() as stack:
         pool = None
@@ -319,10 +369,53 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
             submit(window)
         rejected.extend(rejection_to_dict(r) for r in pairer.pop_rejections())
         drain(0)
-    pooled = pool_results([w.result for w in windows]) if windows else None
+    pooled, used, note = _pooled([w.result for w in windows], kept, pooling=pooling)
     return BagIdentification(info=info, method=method, window_size=window_size,
                              windows=tuple(windows), pooled=pooled, rejected=tuple(rejected),
-                             moves=total / 2)
+                             moves=total / 2, pooling=used if windows else '',
+                             pooled_windows=len(kept) if used == 'joint' else len(windows),
+                             pooling_note=note)
+
+
+def _keep(kept: list[Window], window: Window, *, limit: int) -> None:
+    """Hold ``window`` for the joint fit, at most ``limit`` windows in all.
+
+    Beyond the limit, the oldest window of the signed target angle holding the most windows
+    goes, so the held windows stay spread over the angles (each excites the modes its own
+    way).
+    """
+    if window.moves < 3:  # the joint fit needs 3 moves per window
+        return
+    kept.append(window)
+    if len(kept) > limit:
+        counts = collections.Counter(w.target_angle for w in kept)
+        most = max(counts.values())
+        drop = next(i for i, w in enumerate(kept) if counts[w.target_angle] == most)
+        del kept[drop]
+
+
+def _pooled(results: list[IdentificationResult], kept: list[Window], *,
+            pooling: str) -> tuple[IdentificationResult | None, str, str | None]:
+    """(pooled estimate, pooling used, note) of the identified windows."""
+    from galvo_sysid.identify import identify_joint, pool_results
+
+    if not results:
+        return None, '', None
+    combined = pool_results(results)
+    if pooling != 'joint':
+        return combined, 'inverse-variance', None
+    periods = {w.sample_period for w in kept}
+    if len(periods) != 1:
+        reason = 'windows of different sample periods' if periods else \
+            'no window of 3 moves or more'
+        return combined, 'inverse-variance', f'joint fit not made ({reason})'
+    try:
+        joint = identify_joint([(w.current, w.encoder) for w in kept],
+                               sample_period=periods.pop(), initial=combined,
+                               target_angle=combined.target_angle)
+    except GalvoSysidError as err:
+        return combined, 'inverse-variance', f'joint fit failed: {_one_line(err)}'
+    return joint, 'joint', None
 
 
 def _one_line(err: BaseException) -> str:

@@ -116,6 +116,9 @@ def test_identify_json_contract(identified: dict) -> None:
     assert all(w['moves'] == 100 for w in complete)
     assert all(w['moves'] == 60 for w in partial)
     assert identified['pooled']['moves'] == 320
+    assert identified['pooled']['pooling'] == 'joint'
+    assert identified['pooled']['pooled_windows'] == 4
+    assert identified['pooled']['pooling_note'] is None
     assert identified['rejected'] == []
 
 
@@ -141,7 +144,7 @@ def test_simulate_identify_table_plot_and_info(venv_bin: Path, sim_bag: Path,
     plot = tmp_path / 'report.png'
     proc = run(venv_bin, 'identify', sim_bag, '--plot', plot)
     assert proc.returncode == 0, proc.stderr
-    assert 'pooled over 2 window(s), 200 moves' in proc.stdout
+    assert 'pooled over 2 window(s), 200 moves (one joint fit):' in proc.stdout
     for name in REFERENCE_MODEL.parameters():
         assert name in proc.stdout
     assert plot.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'

@@ -4,14 +4,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from galvo_sysid.bagio import BagReader, SetAside
 from galvo_sysid.drift import DriftMonitor
-from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.errors import ConfigurationError, IdentificationError
+from galvo_sysid.identify import identify_joint, pool_results
 from galvo_sysid.offline import identify_bag
 from galvo_sysid.online import fit_window
 from galvo_sysid.pairing import MoveWindower
+from galvo_sysid.plant import TAU
 from galvo_sysid.simtools import simulate_bag
 
 
@@ -41,6 +44,71 @@ def test_same_as_the_node_objects_by_hand(bag: Path) -> None:
         assert w.drift == verdict
 
 
+def _bag_windows(bag: Path) -> list:
+    windower = MoveWindower(window_size=100)
+    with BagReader(bag) as reader:
+        return [w for half in reader.move_halves() for w in windower.add(half)]
+
+
+def test_pooled_is_the_joint_fit_started_from_the_combination(bag: Path) -> None:
+    found = identify_bag(bag)
+    assert (found.pooling, found.pooled_windows, found.pooling_note) == ('joint', 4, None)
+    start = pool_results([w.result for w in found.windows])
+    windows = _bag_windows(bag)
+    expected = identify_joint([(w.current, w.encoder) for w in windows], sample_period=TAU,
+                              initial=start, target_angle=start.target_angle)
+    assert found.pooled is not None
+    assert found.pooled.to_dict() == expected.to_dict()  # (target_angle nan: no ==)
+    assert found.pooled.moves == 400
+    assert found.pooled.to_dict() != start.to_dict()
+    out = found.to_dict()['pooled']
+    assert (out['pooling'], out['pooled_windows'], out['pooling_note']) == ('joint', 4, None)
+    assert out['k0_std'] == expected.k0_std > 0
+
+
+def test_inverse_variance_pooling_and_the_fallback(bag: Path, monkeypatch: pytest.MonkeyPatch,
+                                                   ) -> None:
+    import galvo_sysid.identify
+
+    found = identify_bag(bag, pooling='inverse-variance')
+    start = pool_results([w.result for w in found.windows])
+    assert found.pooled is not None
+    assert found.pooled.to_dict() == start.to_dict()
+    assert (found.pooling, found.pooled_windows, found.pooling_note) == \
+        ('inverse-variance', 4, None)
+
+    def fail(*args: object, **kwargs: object) -> None:
+        raise IdentificationError('no physical mode 3 in the band')
+
+    monkeypatch.setattr(galvo_sysid.identify, 'identify_joint', fail)
+    fallback = identify_bag(bag)
+    assert fallback.pooled is not None
+    assert fallback.pooled.to_dict() == start.to_dict()
+    assert fallback.pooling == 'inverse-variance'
+    assert fallback.pooling_note == 'joint fit failed: no physical mode 3 in the band'
+    assert fallback.to_dict()['pooled']['pooling_note'] == fallback.pooling_note
+
+
+def test_joint_windows_stay_spread_over_the_angles() -> None:
+    from galvo_sysid.offline import _keep
+    from galvo_sysid.pairing import Window
+
+    def window(index: int, angle: float, moves: int = 5) -> Window:
+        data = np.zeros((moves, 64))
+        return Window(index=index, target_angle=angle, sample_period=TAU, current=data,
+                      encoder=data, move_ids=tuple(range(moves)), first_stamp=0.0,
+                      last_stamp=0.0, partial=False)
+
+    kept: list[Window] = []
+    for i, angle in enumerate([1.0, 1.0, 1.0, 1.0, 2.0, 3.0, 2.0]):
+        _keep(kept, window(i, angle), limit=4)
+    # the angle holding the most loses its oldest window each time
+    assert [(w.index, w.target_angle) for w in kept] == [(3, 1.0), (4, 2.0), (5, 3.0),
+                                                          (6, 2.0)]
+    _keep(kept, window(7, 4.0, moves=2), limit=4)  # too few moves for the joint fit
+    assert len(kept) == 4
+
+
 def test_parallel_fits_give_identical_results(bag: Path) -> None:
     one = identify_bag(bag, jobs=1)
     two = identify_bag(bag, jobs=2)
@@ -68,12 +136,16 @@ def test_paper_method(bag: Path) -> None:
     assert {w.result.method for w in found.windows} == {'paper-A'}
     assert found.pooled is not None
     assert found.pooled.method == 'paper-A'
+    assert found.pooling == 'inverse-variance'
 
 
 @pytest.mark.parametrize(('kwargs', 'match'), [
     ({'method': 'fancy'}, 'unknown method'),
     ({'min_partial': 1}, 'min_partial'),
     ({'jobs': 0}, 'jobs'),
+    ({'method': 'paper-A', 'pooling': 'joint'}, 'not possible with method'),
+    ({'pooling': 'median'}, 'not possible'),
+    ({'joint_windows': 0}, 'joint_windows'),
 ])
 def test_bad_settings(bag: Path, kwargs: dict, match: str) -> None:
     with pytest.raises(ConfigurationError, match=match):
