@@ -16,6 +16,12 @@ the reported std match the errors, and the pooled estimate of each seed's 19 win
 :func:`galvo_sysid.identify.identify_joint` (one fit to all windows), against issue 3's
 targets.
 
+Last, exactly what ``galvo-sysid identify --json`` reports as ``pooled``: per seed one bag
+written by :func:`galvo_sysid.simtools.simulate_bag` (``galvo-sysid simulate --angles paper
+--moves-per-angle 200``: 100 moves of each signed angle, 38 windows) and identified by
+:func:`galvo_sysid.offline.identify_bag`, with its pooling (the joint fit) and, for
+comparison, its ``pooling='inverse-variance'``; ``--bag-seeds`` (none: skip).
+
 Run from the repository root (about a minute for the default 6 seeds)::
 
     python benchmarks/accuracy.py
@@ -110,6 +116,8 @@ def main(argv: list[str] | None = None) -> int:
                              '(simulate_window seeds 1000..)')
     parser.add_argument('--quick', action='store_true',
                         help='only 5 angles (0.1, 0.5, 1, 3, 10 psi) instead of 19')
+    parser.add_argument('--bag-seeds', type=int, nargs='*', default=None,
+                        help='seeds of the identify_bag section (default: --seeds; none: skip)')
     args = parser.parse_args(argv)
     angles = [a for a in PAPER_ANGLES if not args.quick
               or round(a / PSI, 6) in (0.1, 0.5, 1.0, 3.0, 10.0)]
@@ -247,7 +255,52 @@ def main(argv: list[str] | None = None) -> int:
             print(_row(n, [*cells, TARGET_POOLED[n]]))
         if t_joint:
             print(f'joint fit CPU time per bag: median {np.median(t_joint):.2f} s')
+    bag_seeds = args.seeds if args.bag_seeds is None else args.bag_seeds
+    if bag_seeds:
+        _bag_section(bag_seeds, angles)
     return 0
+
+
+def _bag_section(seeds: list[int], angles: list[float]) -> None:
+    """Pooled errors of identify_bag (what ``galvo-sysid identify --json`` prints)."""
+    import tempfile
+
+    from galvo_sysid.offline import identify_bag
+    from galvo_sysid.simtools import simulate_bag
+
+    found: dict[str, list[IdentificationResult]] = {'joint': [], 'inverse-variance': []}
+    used: list[str] = []
+    cpu: list[float] = []
+    windows = 0
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in seeds:
+            bag = Path(tmp) / f'bag{seed}'
+            simulate_bag(bag, angles=angles, moves_per_angle=200, seed=seed)
+            for pooling in found:
+                c0 = time.process_time()
+                out = identify_bag(bag, pooling=pooling)
+                if pooling == 'joint':
+                    cpu.append(time.process_time() - c0)
+                    used.append(out.pooling + (f' ({out.pooling_note})' if out.pooling_note
+                                               else ''))
+                    windows = len(out.windows)
+                if out.pooled is not None:
+                    found[pooling].append(out.pooled)
+    print(f'\nidentify_bag on simulated bags ({len(angles)} angles x 200 moves, i.e. 100 '
+          f'moves of each signed angle: {windows} windows; seeds {seeds}): pooled |error| '
+          f'[%], median and max over the bags, the reported std [%] (median), target')
+    print('param'.ljust(9) + ''.join(h.rjust(11) for h in
+                                     ('joint med', 'joint max', 'joint std', 'invvar med',
+                                      'target')))
+    for n in NAMES:
+        joint = [abs(_errors(p)[n]) for p in found['joint']]
+        inv = [abs(_errors(p)[n]) for p in found['inverse-variance']]
+        std = [100.0 * p.std_by_name()[n] / abs(TRUTH[n]) for p in found['joint']]
+        print(_row(n, [float(np.median(joint)), float(np.max(joint)), float(np.median(std)),
+                       float(np.median(inv)), TARGET_POOLED[n]], width=11))
+    print(f'pooling used: {", ".join(sorted(set(used)))}; identify_bag CPU time per bag '
+          f'(jobs=1, reading + {windows} window fits + joint fit): median '
+          f'{np.median(cpu):.2f} s')
 
 
 if __name__ == '__main__':
