@@ -175,7 +175,7 @@ def _is_repeat(r: Rejection) -> bool:
     return 'duplicate' in r.reason or 'repeat' in r.reason
 
 
-@examples(150)
+@examples(300)
 @given(streams(), st.integers(2, 5))
 def test_every_move_is_windowed_or_set_aside_exactly_once(
         stream: tuple[list[Planned], list[MoveHalf]], window_size: int) -> None:
@@ -205,7 +205,7 @@ def test_every_move_is_windowed_or_set_aside_exactly_once(
     assert w.moves_accepted == sum(windowed.values())
 
 
-@examples(100)
+@examples(200)
 @given(streams(), st.integers(2, 4), st.integers(1, 3), st.integers(1, 2))
 def test_tight_limits_evict_moves_once_and_never_also_window_them(
         stream: tuple[list[Planned], list[MoveHalf]], window_size: int, max_pending: int,
@@ -359,7 +359,7 @@ def _typed_or_ok(call: Any, *args: Any, **kwargs: Any) -> Any:
     return out
 
 
-@examples(120)
+@examples(200)
 @given(weird_arrays, weird_arrays, periods, st.sampled_from(['paper-A', 'paper-B', 'refined']))
 def test_identify_window_on_arbitrary_arrays(current: Any, encoder: Any, period: float,
                                              method: str) -> None:
@@ -393,7 +393,7 @@ SPOILERS = ('scale_current', 'scale_encoder', 'constant_encoder', 'zero_rows', '
             'truncate', 'few_moves', 'noise_only', 'reverse', 'nan_sample', 'quantise')
 
 
-@examples(60)
+@examples(150)
 @given(st.lists(st.sampled_from(SPOILERS), min_size=1, max_size=3),
        st.floats(-300, 300), st.integers(0, 10**6),
        st.sampled_from(['paper-A', 'paper-B', 'refined']))
