@@ -2,35 +2,35 @@
 
 The comparison does not depend on the controller: the model is driven by each move's
 measured current, from rest at the move's start angle (:mod:`galvo_sysid.candidates`), and
-its angle is compared with the measured encoder. Moves are grouped by signed target angle.
+its angle is compared with the measured encoder. Back-to-back moves do not start quite at
+rest: the ringing that the previous moves (up to two, known from move ids and stamps) leave
+in the resonant modes is carried over into the record. Moves are grouped by signed target
+angle. See docs/discrepancy.md for the derivation and an example.
 
-Residual, noise floor and gap (see docs/discrepancy.md for the derivation):
+Residual, noise floor and gap:
 
 - Each move's residual e = y_measured - y_model is differenced twice (which removes the
-  unknown start offset and start velocity exactly) and Fourier transformed; bins 1 .. N/2-1
-  are used. The mean over a group's M moves is what the model must explain; the move-to-move
-  scatter around it, pooled over the groups, gives the noise floor sigma^2(f) / M of that
-  mean at every frequency.
-- A real scanner is never exactly at rest when a move starts (the previous move still rings
-  a little, the amplifier still carries current). Each group's mean residual may therefore
-  contain the free response of the model's own modes from an unknown initial state, plus
-  the response to the unrecorded command just before the record; these "start-state"
-  responses are projected out (weighted least squares) for every model alike.
-- z^2(f) = |mean residual|^2 / (sigma^2(f) / M) after that projection; its sum J is the
+  unknown start offset and start velocity of the rigid body exactly) and Fourier
+  transformed; bins 1 .. N/2-1 are used. The mean over a group's M moves is what the model
+  must explain; the move-to-move scatter around it, pooled over the groups, gives the noise
+  floor sigma^2(f) / M of that mean at every frequency.
+- z^2(f) = |mean residual|^2 / (sigma^2(f) / M); its sum J over bins and groups is the
   noise-normalised cost (the negative log-likelihood of Gaussian noise, up to a constant).
-  If the model explains the data, J is about its noise expectation J_noise (one per complex
-  bin less half the projected start-state parameters).
-- **gap** = sqrt(max(0, J / J_noise - 1)): the systematic part of the residual, RMS over all
-  frequencies and groups, in units of the noise floor; 0 when the model explains the data
-  within the noise, 1 when the unexplained residual is as large as the noise floor.
+  If the model explains the data, J is about J_noise = number of bins x groups.
+- **gap** = sqrt(max(0, J / J_noise - 1)): the systematic part of the mean residual, RMS
+  over all frequencies and groups, in units of the noise floor: 0 when the model explains
+  the data within the noise, 1 when the unexplained residual is as large as the noise floor.
+  Noise alone keeps it below :attr:`Comparison.noise_gap` (about 0.4 for six groups).
 
 Naming an effect: each candidate of :data:`~galvo_sysid.model_io.EFFECT_NAMES` is fitted
 (its parameters minimise J) and scored by the drop of the Bayesian information criterion,
-score = 2 (J_model - J_candidate) - p ln(n) (p fitted parameters, n real data points). The
-best candidate is accepted when its score exceeds ``threshold``; the residual's whiteness
-(largest band excess of z^2) is reported next to it. The accepted effect is added to the
-model and the search repeats, so several effects are found in turn. ``none`` is the answer
-when no candidate is worth its parameters.
+score = 2 (J_model - J_candidate) - p ln(n) (p fitted parameters, n real data points; the
+unmodelled resonance pays 2 ln(bins) more for picking its frequency). The best candidate is
+accepted when its score exceeds ``threshold``; the residual's whiteness (largest band excess
+of z^2) is reported next to it. The accepted effect is added to the model, the effects
+added so far are refitted together, and the search repeats while the gap stays above the
+noise, so several effects are found in turn. ``none`` is the answer when no candidate is
+worth its parameters.
 """
 
 from __future__ import annotations
@@ -67,7 +67,6 @@ if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
-    'DEFAULT_MIN_GAP',
     'DEFAULT_THRESHOLD',
     'CandidateFit',
     'Comparison',
@@ -83,10 +82,17 @@ __all__ = [
 DEFAULT_THRESHOLD = 10.0
 """Score (BIC drop) a candidate needs to be accepted."""
 
-DEFAULT_MIN_GAP = 0.1
-"""Gap below which no further effect is searched for once one has been added."""
 
 _PHASES = ('acceleration', 'deceleration', 'settling')
+
+_BAND_SIGNIFICANCE = 6.0
+"""Band excess (noise std units) that counts as significant: 3 standard deviations, with
+the standard deviation doubled for the correlation between bins (see
+:attr:`Comparison.noise_gap`)."""
+
+_MIN_DAMPING = 1e-3
+"""Smallest damping ratio an unmodelled resonance may be given (below it the fit is a
+free sinusoid that chases noise rather than a mechanical mode)."""
 
 
 
@@ -330,6 +336,11 @@ class Diagnostics:
         return _gap(self.cost, self.cost_noise)
 
     @property
+    def noise_gap(self) -> float:
+        """The largest gap noise alone gives (see :attr:`Comparison.noise_gap`)."""
+        return _noise_gap(self.cost_noise)
+
+    @property
     def group_gaps(self) -> NDArray[np.float64]:
         """The gap of each group."""
         return np.array([_gap(c, n) for c, n in zip(self.group_cost, self.group_cost_noise,
@@ -338,6 +349,10 @@ class Diagnostics:
 
 def _gap(cost: float, noise: float) -> float:
     return math.sqrt(max(0.0, cost / noise - 1.0)) if noise > 0 else math.nan
+
+
+def _noise_gap(noise: float) -> float:
+    return math.sqrt(6.0 / math.sqrt(noise))
 
 
 def _fft_conv(x: NDArray[np.float64], h: NDArray[np.float64], lo: int,
@@ -439,21 +454,24 @@ class Comparison:
             self._pulses[key] = found
         return found
 
-    def carry(self, physics: Physics, ext: NDArray[np.float64],
-              current: NDArray[np.float64]) -> NDArray[np.float64]:
+    def carry(self, physics: Physics, ext: NDArray[np.float64], current: NDArray[np.float64],
+              *, hold: NDArray[np.float64] | float = 0.0) -> NDArray[np.float64]:
         """Ringing (R, N) that the moves before the records leave in the resonant modes.
 
         Args:
             physics: The plant.
             ext: Extended records (R, L): previous moves, dwells, then the record.
             current: The records themselves (R, N).
+            hold: Current holding each record's start angle (a pivot spring's equilibrium,
+                which the record's own simulation already accounts for), (R, 1).
         """
         n = self.moves.samples
         length = ext.shape[1]
         if length == n or not physics.residues:
             return np.zeros_like(current)
         h_u, h_d = self._pulse(physics)
-        out = _fft_conv(ext, h_u, length - n, length) - _fft_conv(current, h_u[:n], 0, n)
+        out = (_fft_conv(ext - hold, h_u, length - n, length)
+               - _fft_conv(current - hold, h_u[:n], 0, n))
         if math.isfinite(physics.current_limit):
             d = clip_correction(ext, physics, sample_period=self.moves.sample_period)
             out += (_fft_conv(d, h_d, length - n, length)
@@ -470,10 +488,12 @@ class Comparison:
         phys = model if isinstance(model, Physics) else physics_of(model)
         sim = self.simulator(phys)
         if not per_move and phys.linear:
+            hold = sim.holding_current(self.mean_start)[:, None]
             return sim.simulate(self.mean_current, self.mean_start) + self.carry(
-                phys, self.mean_ext, self.mean_current)
+                phys, self.mean_ext, self.mean_current, hold=hold)
+        hold = sim.holding_current(self.start)[:, None]
         y = sim.simulate(self.moves.current, self.start) + self.carry(
-            phys, self.ext, self.moves.current)
+            phys, self.ext, self.moves.current, hold=hold)
         if per_move:
             return y
         return np.stack([y[i].mean(axis=0) for i in self.index])
@@ -495,6 +515,17 @@ class Comparison:
         """J_noise: the expectation of J if a model explained the data."""
         return float(self.n_bins * len(self.index))
 
+    @property
+    def noise_gap(self) -> float:
+        """The largest gap the noise alone gives (about three standard deviations).
+
+        J of a model that explains the data is a sum of n = n_bins x groups terms of mean 1;
+        if they were independent, J / J_noise - 1 would have the standard deviation
+        1 / sqrt(n). On simulated data without any effect it scatters twice as much (the
+        bins are not independent), so the bound is J / J_noise - 1 < 6 / sqrt(n).
+        """
+        return _noise_gap(self.noise_cost)
+
     def gap(self, model: PlantModel | Physics) -> float:
         """The gap of a model, in units of the noise floor (see the module docs)."""
         return _gap(self.cost(model), self.noise_cost)
@@ -502,7 +533,7 @@ class Comparison:
     def whiteness(self, model: PlantModel | Physics, *, bands: int = 16) -> float:
         """Largest excess of z^2 in any of ``bands`` log-spaced bands, in noise std units.
 
-        About 0 +- 1 when the residual is white (noise only); > 3 means a band still holds
+        About 0 +- 2 when the residual is white (noise only); > 6 means a band still holds
         a systematic residual.
         """
         r = self.whitened(model)
@@ -618,7 +649,8 @@ class CandidateFit:
         cost: J of the augmented model.
         score: BIC drop against the model without the candidate (0 for ``none``).
         gap: Gap of the augmented model.
-        whiteness: Largest band excess of the augmented model's residual (noise std units).
+        whiteness: Largest band excess of the augmented model's residual (noise std units;
+            noise alone stays below about 6).
         model: The augmented model.
     """
 
@@ -728,9 +760,11 @@ class _Fitter:
             scale = abs(k0) if k0 else 1.0
 
             def objective(x: NDArray[np.float64]) -> float:
+                zeta = z0 * math.exp(float(x[1]))
+                if not _MIN_DAMPING <= zeta <= 0.95:
+                    return math.inf
                 return cost({'natural_frequency': w0 * math.exp(float(x[0])),
-                             'damping_ratio': z0 * math.exp(float(x[1])),
-                             'residue': scale * float(x[2])})
+                             'damping_ratio': zeta, 'residue': scale * float(x[2])})
             x0 = np.array([0.0, 0.0, k0 / scale])
             simplex = x0 + np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.0, 0.1, 0.0],
                                      [0.0, 0.0, 0.05]])
@@ -794,7 +828,7 @@ class _Fitter:
 
         def objective(x: NDArray[np.float64]) -> float:
             omega, zeta = math.exp(x[0]), math.exp(x[1])
-            if not (lowest <= omega <= w_max and 1e-4 <= zeta <= 0.95):
+            if not (lowest <= omega <= w_max and _MIN_DAMPING <= zeta <= 0.95):
                 return math.inf
             return cost({'natural_frequency': omega, 'damping_ratio': zeta,
                          'residue': float(x[2]) * scale})
@@ -816,6 +850,9 @@ class _Fitter:
         model = self.base.with_effect(name, params)
         cost = self.comp.cost(model)
         score = 2.0 * (self.base_cost - cost) - p * math.log(self.comp.n_real)
+        if name == 'unmodeled_resonance':
+            # look-elsewhere: the frequency is picked among about n_bins resolvable ones
+            score -= 2.0 * math.log(self.comp.n_bins)
         return CandidateFit(effect=name, parameters=params, n_parameters=p, cost=cost,
                             score=score, gap=self.comp.gap(model),
                             whiteness=self.comp.whiteness(model), model=model)
@@ -881,8 +918,9 @@ class Localisation:
 
     @property
     def main_bands(self) -> tuple[Band, ...]:
-        """Significant bands (excess > 3), largest first, at most three."""
-        sig = sorted((b for b in self.bands if b.excess > 3), key=lambda b: -b.excess)
+        """Significant bands (excess > 6), largest first, at most three."""
+        sig = sorted((b for b in self.bands if b.excess > _BAND_SIGNIFICANCE),
+                     key=lambda b: -b.excess)
         return tuple(sig[:3])
 
     def to_dict(self) -> dict[str, Any]:
@@ -978,7 +1016,7 @@ def localise(diag: Diagnostics, *, bands: int = 16) -> Localisation:
     # significant if the time-domain excess is well above its rough noise spread
     n_total = sum(counts.values())
     total = sum(sums.values())
-    significant = diag.gap > 0.1 and total > 3 * math.sqrt(2 * max(n_total, 1))
+    significant = diag.gap > diag.noise_gap and total > 6 * math.sqrt(2 * max(n_total, 1))
     density = {k: max(v, 0.0) / counts[k] if counts[k] else 0.0 for k, v in sums.items()}
     tot = sum(density.values())
     phases = {k: (v / tot if tot > 0 else 0.0) for k, v in density.items()}
@@ -986,26 +1024,28 @@ def localise(diag: Diagnostics, *, bands: int = 16) -> Localisation:
     # move size: pool both signs of each magnitude
     mags = np.round(np.abs(diag.angles), 9)
     angles = tuple(float(a) for a in np.unique(mags))
-    gaps = []
+    gaps, floors = [], []
     for a in angles:
         sel = np.flatnonzero(mags == a)
-        gaps.append(_gap(float(diag.group_cost[sel].sum()),
-                         float(diag.group_cost_noise[sel].sum())))
-    trend, slope = _size_trend(angles, gaps)
+        noise = float(diag.group_cost_noise[sel].sum())
+        gaps.append(_gap(float(diag.group_cost[sel].sum()), noise))
+        floors.append(_noise_gap(noise))
+    trend, slope = _size_trend(angles, gaps, floors)
     return Localisation(bands=band_list, phases=phases, main_phase=main_phase, angles=angles,
                         gaps=tuple(gaps), size_trend=trend, size_exponent=slope)
 
 
-def _size_trend(angles: Sequence[float], gaps: Sequence[float]) -> tuple[str, float]:
-    """Classify how the gap depends on the move size."""
-    sig = [g > 0.3 for g in gaps]
+def _size_trend(angles: Sequence[float], gaps: Sequence[float],
+                floors: Sequence[float]) -> tuple[str, float]:
+    """Classify how the gap depends on the move size (``floors``: noise gap per angle)."""
+    sig = [g > f for g, f in zip(gaps, floors, strict=True)]
     if not any(sig):
         return 'none', math.nan
     if len(angles) < 2:
         return 'single angle', math.nan
-    if not sig[0] and sig[-1] and gaps[-1] > 1:
+    if not sig[0] and sig[-1] and gaps[-1] > 3 * floors[-1]:
         return 'only large moves', math.nan
-    if sig[0] and not sig[-1] and gaps[0] > 1:
+    if sig[0] and not sig[-1] and gaps[0] > 3 * floors[0]:
         return 'only small moves', math.nan
     x = np.log([a for a, s in zip(angles, sig, strict=True) if s])
     y = np.log([g for g, s in zip(gaps, sig, strict=True) if s])
@@ -1077,6 +1117,7 @@ class DiscrepancyResult:
         where: Where the given model disagrees with the moves.
         where_after: Where the final model still does.
         threshold: Score a candidate needed.
+        noise_gap: Largest gap the noise alone gives (about 0.1 % chance to exceed it).
         moves: Moves compared.
         before: Diagnostics of the given model (for reports).
         after: Diagnostics of the final model.
@@ -1093,6 +1134,7 @@ class DiscrepancyResult:
     where: Localisation
     where_after: Localisation
     threshold: float
+    noise_gap: float
     moves: int
     before: Diagnostics = field(repr=False, compare=False)
     after: Diagnostics = field(repr=False, compare=False)
@@ -1101,7 +1143,7 @@ class DiscrepancyResult:
         """The ``--json`` object.
 
         Keys: effect, parameters, gap_before, gap_after, candidates, steps, then where,
-        where_after, moves, angles, threshold and model (the final model).
+        where_after, moves, angles, threshold, noise_gap and model (the final model).
         """
         from galvo_sysid.model_io import model_to_dict
 
@@ -1117,13 +1159,14 @@ class DiscrepancyResult:
             'moves': self.moves,
             'angles': [float(a) for a in self.before.angles],
             'threshold': self.threshold,
+            'noise_gap': self.noise_gap,
             'model': model_to_dict(self.final_model),
         }
 
 
 def find_discrepancy(moves: MoveSet, model: PlantModel = NOMINAL_MODEL, *,
                      threshold: float = DEFAULT_THRESHOLD, max_effects: int = 3,
-                     min_gap: float = DEFAULT_MIN_GAP, effects: Sequence[str] = EFFECT_NAMES,
+                     min_gap: float | None = None, effects: Sequence[str] = EFFECT_NAMES,
                      progress: Callable[[str], None] | None = None) -> DiscrepancyResult:
     """Compare a model with measured moves, name the missing effects and add them.
 
@@ -1133,7 +1176,8 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = NOMINAL_MODEL, *,
         threshold: Score (BIC drop) a candidate needs to be accepted.
         max_effects: Most effects added.
         min_gap: After an effect is added, the search goes on only while the gap is at
-            least this (below it the model explains the moves within the noise).
+            least this; default :attr:`Comparison.noise_gap` (below it the model explains the
+            moves within the noise).
         effects: Candidate effects to try.
         progress: Called with a short text before each candidate fit.
 
@@ -1150,6 +1194,8 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = NOMINAL_MODEL, *,
     if not (math.isfinite(threshold) and max_effects >= 0):
         raise ConfigurationError('threshold must be finite and max_effects >= 0')
     comp = Comparison(moves, model)
+    if min_gap is None:
+        min_gap = comp.noise_gap
     current = model
     steps: list[Step] = []
     where_added: list[int] = []                # index of each step's effect in the model
@@ -1198,4 +1244,4 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = NOMINAL_MODEL, *,
         gap_before=comp.gap(model), gap_after=comp.gap(current), candidates=first,
         steps=tuple(steps), initial_model=model, final_model=current,
         where=localise(before), where_after=localise(after), threshold=threshold,
-        moves=moves.moves, before=before, after=after)
+        noise_gap=comp.noise_gap, moves=moves.moves, before=before, after=after)

@@ -294,6 +294,11 @@ def _number(data: Mapping[str, Any], key: str, where: str, default: float | None
             raise ConfigurationError(f'{where}: {key!r} is missing')
         return default
     value = data[key]
+    if isinstance(value, str):  # YAML 1.1 reads 3.0e6 (no sign in the exponent) as text
+        try:
+            return float(value)
+        except ValueError:
+            pass
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ConfigurationError(f'{where}: {key!r} must be a number, got {value!r}')
     return float(value)
@@ -340,14 +345,14 @@ def model_from_dict(data: Mapping[str, Any], *, source: str = 'model') -> PlantM
     delay_samples = _number(dyn, 'computation_delay', where, 1.0)
     if delay_samples != int(delay_samples):
         raise ConfigurationError(f'{where}: computation_delay must be a whole number of samples')
+    k0 = _number(mech, 'k0', f'{source}: mechanics')
+    lag = _number(dyn, 'lag_time_constant', where, 0.6 * sample_period)
+    dead = _number(dyn, 'dead_time', where, 0.0)
     try:
-        modal = ModalModel(k0=_number(mech, 'k0', f'{source}: mechanics'),
-                           residues=tuple(residues), natural_frequencies=tuple(freqs),
+        modal = ModalModel(k0=k0, residues=tuple(residues), natural_frequencies=tuple(freqs),
                            damping_ratios=tuple(damps))
-        dynamics = InputDynamics(
-            computation_delay=int(delay_samples),
-            lag_time_constant=_number(dyn, 'lag_time_constant', where, 0.6 * sample_period),
-            dead_time=_number(dyn, 'dead_time', where, 0.0))
+        dynamics = InputDynamics(computation_delay=int(delay_samples), lag_time_constant=lag,
+                                 dead_time=dead)
     except ConfigurationError as err:
         raise ConfigurationError(f'{source}: {err}') from None
     items = data.get('effects') or []

@@ -74,7 +74,8 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
     lines.append(f'model: {result.initial_model.description or result.initial_model}')
     lines.append('')
     lines.append(f'gap of the model: {result.gap_before:.3g}  (RMS of the unexplained mean '
-                 f'residual in noise-floor units; 0 = explained within the noise)')
+                 f'residual in noise-floor units; noise alone stays below '
+                 f'{result.noise_gap:.2g})')
     lines.append('where the model and the moves disagree:')
     lines.extend('  ' + line for line in result.where.summary())
     lines.append('')
@@ -86,8 +87,8 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
     lines.append('')
     if not result.steps:
         lines.append('found: none - the model explains the moves within the noise' if
-                     result.gap_before < 0.5 else
-                     'found: none of the candidate effects explains the gap')
+                     result.gap_before < result.noise_gap else
+                     'found: none - no candidate effect is worth its parameters')
     else:
         lines.append(f'found: {result.effect} ({_params(result.parameters, t)})')
         for i, s in enumerate(result.steps, start=1):
