@@ -19,9 +19,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg
-from scipy.signal import lfilter
 
 from galvo_sysid.errors import ConfigurationError, IdentificationError, InvalidDataError
+from galvo_sysid.filters import fir, lfilter
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray
@@ -116,7 +116,7 @@ class ArxModel:
 
     def simulate(self, u: ArrayLike) -> NDArray[np.float64]:
         """Simulate y = B/A u from rest along the last axis of ``u``."""
-        return np.asarray(lfilter(self.num, self.den, np.asarray(u, dtype=float), axis=-1),
+        return np.asarray(lfilter(self.num, self.den, np.asarray(u, dtype=float)),
                           dtype=float)
 
     def predict(self, u: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
@@ -125,8 +125,8 @@ class ArxModel:
         y_arr = np.asarray(y, dtype=float)
         if u_arr.shape != y_arr.shape or u_arr.ndim != 1:
             raise InvalidDataError('u and y must be 1-D of equal length')
-        return np.asarray(lfilter(self.num, [1.0], u_arr)
-                          - lfilter(np.array([0.0, *self.a]), [1.0], y_arr), dtype=float)
+        return np.asarray(fir(self.num, u_arr) - fir(np.array([0.0, *self.a]), y_arr),
+                          dtype=float)
 
 
 def regressors(u: NDArray[np.float64], y: NDArray[np.float64], na: int,

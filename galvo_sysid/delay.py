@@ -30,10 +30,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.optimize import minimize_scalar
-from scipy.signal import bilinear, lfilter
 
 from galvo_sysid.arx import fit_arx
 from galvo_sysid.errors import ConfigurationError, IdentificationError, InvalidDataError
+from galvo_sysid.filters import bilinear, lfilter
 from galvo_sysid.plant import REFERENCE_MODEL, ModalModel
 
 if TYPE_CHECKING:
@@ -221,7 +221,7 @@ def fictitious_input(u: ArrayLike, b: ArrayLike, a: ArrayLike) -> NDArray[np.flo
     a_arr = np.atleast_1d(np.asarray(a, dtype=float))
     if b_arr.ndim != 1 or a_arr.ndim != 1 or a_arr[0] == 0:
         raise ConfigurationError('filter must be 1-D (b, a) with a[0] != 0')
-    return np.asarray(lfilter(b_arr, a_arr, u_arr, axis=-1), dtype=float)
+    return np.asarray(lfilter(b_arr, a_arr, u_arr), dtype=float)
 
 
 @dataclass(frozen=True)

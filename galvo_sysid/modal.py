@@ -37,10 +37,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg
-from scipy.signal import lfilter
 
 from galvo_sysid.arx import ArxModel
 from galvo_sysid.errors import ConfigurationError, IdentificationError
+from galvo_sysid.filters import lfilter
 from galvo_sysid.plant import REFERENCE_MODEL, InputDynamics, ModalModel
 
 if TYPE_CHECKING:
@@ -141,7 +141,7 @@ def simulate_zoh(model: ModalModel, u: ArrayLike, *, sample_period: float) -> ND
     u_arr = np.asarray(u, dtype=float)
     y = np.zeros_like(u_arr)
     for b, a in zoh_blocks(model, sample_period):
-        y += lfilter(b, a, u_arr, axis=-1)
+        y += lfilter(b, a, u_arr)
     return y
 
 
