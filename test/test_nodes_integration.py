@@ -206,12 +206,14 @@ def test_live_identification_drift_stale_and_recovery(graph: Graph) -> None:
                    for m in results[seen:])
 
     graph.spin_until(stepped, 30, 'a window identifying the stepped omega_1')
-    graph.spin_until(lambda: any(v.level == DriftStatus.ERROR and 'omega_1' in v.message
-                                 for v in verdicts), 20, 'the drift flag on omega_1')
-    # (the first flagged window may mix moves before and after the step)
-    flagged = next(v for v in verdicts if v.level == DriftStatus.ERROR)
-    i = list(flagged.names).index('omega_1')
-    assert flagged.relative_deviation[i] == pytest.approx(-0.03, abs=0.002)
+    def omega_1_flags() -> list[float]:
+        return [v.relative_deviation[list(v.names).index('omega_1')] for v in verdicts
+                if v.level == DriftStatus.ERROR and 'omega_1' in v.message]
+
+    # The first flagged window may mix moves from before and after the step; a window made
+    # wholly after it must show the full -3 %.
+    graph.spin_until(lambda: any(d == pytest.approx(-0.03, abs=0.002) for d in omega_1_flags()),
+                     30, 'an ERROR verdict with omega_1 at -3 %')
     graph.spin_until(lambda: diags[-1][1] == 2, 10, 'diagnostics ERROR')
 
     # 4. the driver stops: STALE within the timeout
