@@ -379,7 +379,9 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
         target_angle: Reported angle (default: the common estimated angle, nan if they differ).
         n_modes: Resonant modes (pass ``bands`` unless it is the reference model's 3).
         **options: ``bands``, ``reference``, ``min_angle_span`` and the refined options of
-            :func:`identify_window` (``scan_points``, ``whiten_order``, ...).
+            :func:`identify_window` (``scan_points``, ``whiten_order``, ...), and
+            ``keep_initial_damping`` (start from ``initial`` as it is; see
+            :func:`galvo_sysid.refine.refine_joint`).
 
     Returns:
         The joint estimate (``method='refined'``, ``moves`` the total).
@@ -397,7 +399,7 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
     min_span = float(opts.get('min_angle_span', MIN_ANGLE_SPAN))
     joint_keys = {'lag_time_constant', 'estimate_lag', 'computation_delay', 'dead_time',
                   'damping_start', 'scan_points', 'lag_bounds', 'max_nfev', 'resolve_z',
-                  'whiten_order'}
+                  'whiten_order', 'keep_initial_damping'}
     unknown = set(opts) - joint_keys - {'reference', 'bands', 'min_angle_span', 'extra_starts',
                                         'adequacy_limit', 'delay', 'na', 'nb', 'solver',
                                         'max_damping'}

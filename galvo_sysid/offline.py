@@ -399,6 +399,7 @@ def _pooled(results: list[IdentificationResult], kept: list[Window], *,
     """(pooled estimate, pooling used, note) of the identified windows."""
     from galvo_sysid.identify import identify_joint, pool_results
 
+    # the combination of the windows is a good start: the joint fit starts from it as it is
     if not results:
         return None, '', None
     combined = pool_results(results)
@@ -412,7 +413,7 @@ def _pooled(results: list[IdentificationResult], kept: list[Window], *,
     try:
         joint = identify_joint([(w.current, w.encoder) for w in kept],
                                sample_period=periods.pop(), initial=combined,
-                               target_angle=combined.target_angle)
+                               target_angle=combined.target_angle, keep_initial_damping=True)
     except GalvoSysidError as err:
         return combined, 'inverse-variance', f'joint fit failed: {_one_line(err)}'
     return joint, 'joint', None

@@ -55,6 +55,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from scipy import fft as sp_fft
 from scipy.linalg import LinAlgError, cholesky, qr, solve_toeplitz, solve_triangular
 from scipy.optimize import least_squares
 
@@ -122,13 +123,19 @@ def _fir(b: Sequence[float] | NDArray[np.float64], x: NDArray[np.float64],
          axis: int = -1) -> NDArray[np.float64]:
     """FIR filter sum_j b_j x[k - j] along ``axis`` from rest (short filters; faster than
     :func:`scipy.signal.lfilter`, which filters FIR rows one by one)."""  # noqa: D205, D209
-    xs = np.moveaxis(np.asarray(x, dtype=float), axis, -1)
+    xs = np.asarray(x, dtype=float)
+    first = xs.ndim > 1 and axis % xs.ndim == 0
+    if not first and axis % xs.ndim != xs.ndim - 1:
+        return np.moveaxis(_fir(b, np.moveaxis(xs, axis, -1)), -1, axis)
+    n = xs.shape[0] if first else xs.shape[-1]
     out = np.zeros_like(xs)
-    n = xs.shape[-1]
     for j, bj in enumerate(b):
         if bj != 0 and j < n:
-            out[..., j:] += bj * xs[..., : n - j]
-    return np.moveaxis(out, -1, axis)
+            if first:
+                out[j:] += bj * xs[: n - j]
+            else:
+                out[..., j:] += bj * xs[..., : n - j]
+    return out
 
 
 def _pulse_numerator(p: complex, fraction: float, t: float) -> tuple[complex, complex]:
@@ -190,7 +197,8 @@ class _Regressors:
         self.nfft = 1 << (2 * self.n - 1).bit_length()
         u0 = u - u[..., :1]
         self.uf = second_difference(u)
-        self.uf_hat = np.fft.rfft(self.uf, self.nfft, axis=-1)
+        self.uf_hat = sp_fft.rfft(self.uf, self.nfft, axis=-1)
+        self._lag_cache: tuple[float, NDArray[np.float64]] | None = None
         # Fixed FIR parts of the rigid body (double and single integrator, see rigid()).
         f = fraction
         t = sample_period
@@ -201,9 +209,9 @@ class _Regressors:
 
     def convolve(self, h: NDArray[np.float64]) -> NDArray[np.float64]:
         """Responses to the filtered input of the impulse responses h (m, N): (m,) + u.shape."""
-        hh = np.fft.rfft(h, self.nfft, axis=-1)
+        hh = sp_fft.rfft(h, self.nfft, axis=-1)
         prod = hh * self.uf_hat if self.uf_hat.ndim == 1 else hh[:, None, :] * self.uf_hat[None]
-        return np.asarray(np.fft.irfft(prod, self.nfft, axis=-1)[..., : self.n],
+        return np.asarray(sp_fft.irfft(prod, self.nfft, axis=-1)[..., : self.n],
                           dtype=np.float64)
 
     def _pulse(self, p: NDArray[np.complex128]) -> tuple[NDArray[np.complex128],
@@ -227,18 +235,24 @@ class _Regressors:
         return h
 
     def lag_impulse(self, lag: float) -> NDArray[np.float64]:
-        """Impulse response of the lag pole term 1/(s + 1/T_l) (zeros without lag)."""
+        """Impulse response of the lag pole term 1/(s + 1/T_l) (zeros without lag).
+
+        The last one is cached (each evaluation asks for the same lag several times); the
+        caller must not modify the returned array.
+        """
+        if self._lag_cache is not None and self._lag_cache[0] == lag:
+            return self._lag_cache[1]
         h = np.zeros(self.n)
-        if lag <= 0:
-            return h
-        lam = math.exp(-self.t / lag)
-        g1, g2 = _pulse_numerator(-1.0 / lag, self.fraction, self.t)
-        powers = lam ** np.arange(self.n - self.delay - 1, dtype=float)
-        d = self.delay
-        if d + 1 < self.n:
-            h[d + 1:] = g1.real * powers
-        if d + 2 < self.n:
-            h[d + 2:] += g2.real * powers[:-1]
+        if lag > 0:
+            g1, g2 = _pulse_numerator(-1.0 / lag, self.fraction, self.t)
+            powers = np.exp(np.arange(self.n - self.delay - 1, dtype=float) * (-self.t / lag))
+            d = self.delay
+            if d + 1 < self.n:
+                h[d + 1:] = g1.real * powers
+            if d + 2 < self.n:
+                h[d + 2:] += g2.real * powers[:-1]
+        h.flags.writeable = False
+        self._lag_cache = (lag, h)
         return h
 
     def mode_impulses(self, omega: Floats, zeta: Floats, lag: float,
@@ -1111,7 +1125,8 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
                  damping_start: float = DEFAULT_DAMPING_START,
                  lag_bounds: tuple[float, float] = DEFAULT_LAG_BOUNDS,
                  scan_points: int = DEFAULT_SCAN_POINTS, resolve_z: float = DEFAULT_RESOLVE_Z,
-                 whiten_order: int = DEFAULT_WHITEN_ORDER, max_nfev: int = 100) -> RefinedFit:
+                 whiten_order: int = DEFAULT_WHITEN_ORDER, max_nfev: int = 100,
+                 keep_initial_damping: bool = False) -> RefinedFit:
     """Fit one modal model to several windows of the same plant at once (the pooled estimate).
 
     Like :func:`refine_fit`, on every window's average, with omega_i, zeta_i, the lag, k0 and
@@ -1135,6 +1150,13 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
         resolve_z: Significance below which a mode counts as not resolved.
         whiten_order: Order of each window's AR noise model for the prewhitened second stage.
         max_nfev: Iteration limit of each stage.
+        keep_initial_damping: Start from ``initial`` as it is (its damping ratios too) rather
+            than from the continuation's ``damping_start``: for a good start, e.g. the pooled
+            single-window results. If the scan moves no frequency by over 1 %, the first
+            (ordinary least-squares) stage is left out: the noise models of the prewhitened
+            stage are estimated at the start (the moves' deviations from their mean hardly
+            depend on the model). Otherwise the scanned start (at ``damping_start``) is tried
+            too, as without this option.
 
     Returns:
         The joint fit (``initial_conditions`` empty, ``offset`` nan: they are per window;
@@ -1188,26 +1210,38 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
             gains = sum(wt * wt * prob.scan_gains(i, omega_scan, zeta_init, lag0, w_c, z_c)
                         for prob, wt in zip(problems, joint.weights, strict=True))
             omega_scan[i] = float(w_c[int(np.argmax(gains))])
-    starts = [joint.pack(omega_scan, zeta0, lag0)]
-    if np.max(np.abs(np.log(omega_scan / omega0))) > 0.01:
-        starts.append(x_init)
+    moved = np.max(np.abs(np.log(omega_scan / omega0))) > 0.01
+    if keep_initial_damping:
+        span = upper - lower
+        as_is = joint.pack(np.array(initial.natural_frequencies, dtype=float),
+                           np.clip(np.array(initial.damping_ratios, dtype=float), _MIN_DAMPING,
+                                   0.5 * _MAX_DAMPING), lag0)
+        starts = [np.clip(as_is, lower + 1e-3 * span, upper - 1e-3 * span)]
+        if moved:
+            starts.append(joint.pack(omega_scan, zeta0, lag0))
+    else:
+        starts = [joint.pack(omega_scan, zeta0, lag0)]
+        if moved:
+            starts.append(x_init)
+    # Stage 1 only has to find the basin when the prewhitened stage 2 polishes afterwards.
+    tol = _STAGE1_TOL if whiten_order > 0 else 1e-8
 
-    def polish(x0: NDArray[np.float64]) -> Any:
+    def polish(x0: NDArray[np.float64], tol: float = 1e-8) -> Any:
         try:
             return least_squares(joint.residual, x0, jac=joint.jacobian, bounds=(lower, upper),
-                                 x_scale='jac', max_nfev=max_nfev, method='trf')
+                                 x_scale='jac', max_nfev=max_nfev, method='trf', ftol=tol,
+                                 xtol=tol)
         except (ValueError, LinAlgError) as exc:
             raise IdentificationError(f'joint refined fit failed: {exc}') from exc
 
     best = None
-    for x0 in starts:
-        sol = polish(x0)
+    for x0 in starts if len(starts) > 1 or not keep_initial_damping or whiten_order == 0 else ():
+        sol = polish(x0, tol)
         edge = _edge_mode(joint.unpack(sol.x), band_list)
         key = (edge is not None, float(sol.cost))
         if best is None or key < best[0]:
             best = (key, sol)
-    assert best is not None
-    x = best[1].x
+    x = best[1].x if best is not None else starts[0]
     if whiten_order > 0:
         weights = []
         for prob, coef, (cur, enc) in zip(problems, joint.coefficients(x), records,

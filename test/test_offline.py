@@ -56,7 +56,8 @@ def test_pooled_is_the_joint_fit_started_from_the_combination(bag: Path) -> None
     start = pool_results([w.result for w in found.windows])
     windows = _bag_windows(bag)
     expected = identify_joint([(w.current, w.encoder) for w in windows], sample_period=TAU,
-                              initial=start, target_angle=start.target_angle)
+                              initial=start, target_angle=start.target_angle,
+                              keep_initial_damping=True)
     assert found.pooled is not None
     assert found.pooled.to_dict() == expected.to_dict()  # (target_angle nan: no ==)
     assert found.pooled.moves == 400
