@@ -54,13 +54,16 @@ __all__ = [
     'DEFAULT_TOLERANCES',
     'ERROR',
     'LEVEL_NAMES',
+    'MONITOR_PARAMETERS',
     'OK',
     'STALE',
     'WARN',
     'DriftMonitor',
     'DriftVerdict',
     'ModalEstimate',
+    'monitor_from_parameters',
     'parameter_names',
+    'reference_from_parameters',
 ]
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
@@ -421,3 +424,51 @@ def _weighted_line(points: Sequence[_Point]) -> tuple[float, float, float] | Non
     chi2 = float((w * resid**2).sum()) / (len(pts) - 2)
     se = math.sqrt(max(1.0, chi2) / sxx)
     return slope, se, ym + slope * (float(x[-1]) - xm)
+
+
+MONITOR_PARAMETERS = ('warn_fraction', 'n_sigma', 'trend_windows', 'trend_min_windows',
+                      'trend_sigma', 'trend_fraction', 'step_fraction', 'min_fit_percent')
+"""Options of :class:`DriftMonitor` that are watchdog node parameters of the same name."""
+
+
+def reference_from_parameters(values: Mapping[str, Any]) -> ModalModel:
+    """The reference model from watchdog parameters (``reference.k0``, ``reference.residues``,
+    ``reference.natural_frequencies``, ``reference.damping_ratios``; missing: Table I).
+
+    Raises:
+        ConfigurationError: A value is not a number or the model is invalid.
+    """  # noqa: D205
+
+    def floats(name: str, default: tuple[float, ...]) -> tuple[float, ...]:
+        return tuple(float(x) for x in values.get(f'reference.{name}', default))
+
+    try:
+        return ModalModel(
+            k0=float(values.get('reference.k0', REFERENCE_MODEL.k0)),
+            residues=floats('residues', REFERENCE_MODEL.residues),
+            natural_frequencies=floats('natural_frequencies',
+                                       REFERENCE_MODEL.natural_frequencies),
+            damping_ratios=floats('damping_ratios', REFERENCE_MODEL.damping_ratios))
+    except (TypeError, ValueError) as err:
+        raise ConfigurationError(f'bad watchdog parameter: {err}') from None
+
+
+def monitor_from_parameters(values: Mapping[str, Any]) -> DriftMonitor:
+    """The watchdog node's :class:`DriftMonitor` from its parameters, by name.
+
+    The one definition used by the watchdog node and by ``galvo-sysid identify
+    --watchdog-params``: the reference model (:func:`reference_from_parameters`), the
+    ``tolerances.<name>`` given, and the options of :data:`MONITOR_PARAMETERS`; other names
+    are ignored and missing ones take :class:`DriftMonitor`'s defaults (the node's).
+
+    Raises:
+        ConfigurationError: A value is not a number or out of range.
+    """
+    reference = reference_from_parameters(values)
+    try:
+        tolerances = {k.split('.', 1)[1]: float(v) for k, v in values.items()
+                      if k.startswith('tolerances.')}
+    except (TypeError, ValueError) as err:
+        raise ConfigurationError(f'bad watchdog parameter: {err}') from None
+    options = {k: values[k] for k in MONITOR_PARAMETERS if k in values}
+    return DriftMonitor(reference=reference, tolerances=tolerances, **options)

@@ -32,7 +32,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from galvo_sysid.bagio import BagInfo, BagReader, SetAside
+from galvo_sysid.drift import monitor_from_parameters
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError
+from galvo_sysid.pairing import WINDOWER_PARAMETERS
 
 if TYPE_CHECKING:
     import os
@@ -65,13 +67,6 @@ inverse-variance combination of the windows' results."""
 
 JOINT_WINDOWS = 64
 """Windows held for the joint fit at most (about 0.8 MB each for 100 moves of 512 samples)."""
-
-WINDOWER_PARAMETERS = ('window_size', 'samples', 'max_samples', 'pair_timeout', 'time_jump',
-                       'max_pending', 'max_windows', 'max_buffered_samples')
-"""sysid node parameters that configure its :class:`~galvo_sysid.pairing.MoveWindower`."""
-
-_MONITOR_PARAMETERS = ('warn_fraction', 'n_sigma', 'trend_windows', 'trend_min_windows',
-                       'trend_sigma', 'trend_fraction', 'min_fit_percent')
 
 
 def _flatten(tree: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
@@ -125,37 +120,6 @@ def load_node_parameters(path: str | os.PathLike[str], node: str) -> dict[str, A
         msg = f'parameter file {path} has no section for node {node!r} (nor /**)'
         raise ConfigurationError(msg)
     return values
-
-
-def monitor_from_parameters(values: Mapping[str, Any]) -> DriftMonitor:
-    """The watchdog node's :class:`~galvo_sysid.drift.DriftMonitor` from its parameters.
-
-    ``values`` are watchdog parameters by name (``reference.k0``, ``tolerances.omega_1``,
-    ``n_sigma``, ...); missing ones take the node's defaults.
-
-    Raises:
-        ConfigurationError: A value is out of range.
-    """
-    from galvo_sysid.drift import DriftMonitor
-    from galvo_sysid.plant import REFERENCE_MODEL, ModalModel
-
-    def floats(name: str, default: tuple[float, ...]) -> tuple[float, ...]:
-        return tuple(float(x) for x in values.get(f'reference.{name}', default))
-
-    try:
-        reference = ModalModel(
-            k0=float(values.get('reference.k0', REFERENCE_MODEL.k0)),
-            residues=floats('residues', REFERENCE_MODEL.residues),
-            natural_frequencies=floats('natural_frequencies',
-                                       REFERENCE_MODEL.natural_frequencies),
-            damping_ratios=floats('damping_ratios', REFERENCE_MODEL.damping_ratios))
-        tolerances = {k.split('.', 1)[1]: float(v) for k, v in values.items()
-                      if k.startswith('tolerances.')}
-        options = {k: values[k] for k in _MONITOR_PARAMETERS if k in values}
-    except (TypeError, ValueError) as err:
-        msg = f'bad watchdog parameter: {err}'
-        raise ConfigurationError(msg) from None
-    return DriftMonitor(reference=reference, tolerances=tolerances, **options)
 
 
 def _clean(x: float) -> float | None:

@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     'SIGNALS',
+    'WINDOWER_PARAMETERS',
     'MoveHalf',
     'MoveWindower',
     'Rejection',
@@ -44,6 +45,11 @@ __all__ = [
 
 SIGNALS = ('current', 'encoder')
 """The two halves of a move."""
+
+WINDOWER_PARAMETERS = ('window_size', 'samples', 'max_samples', 'pair_timeout', 'time_jump',
+                       'max_pending', 'max_windows', 'max_buffered_samples')
+"""Settings of :class:`MoveWindower` that are sysid node parameters of the same name (the one
+list used by the sysid node and by ``galvo-sysid identify``)."""
 
 
 @dataclass(frozen=True)

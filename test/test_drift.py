@@ -227,3 +227,33 @@ def test_a_step_and_its_recovery_are_no_trend_and_a_later_drift_still_is() -> No
             first_trend = i
     assert first_trend is not None
     assert abs(deviations[first_trend]) < DEFAULT_TOLERANCES['omega_1']
+
+
+def test_monitor_from_parameters_is_the_watchdog_nodes() -> None:
+    import inspect
+
+    from galvo_sysid.drift import MONITOR_PARAMETERS, monitor_from_parameters
+    from galvo_sysid.nodes import watchdog_node
+
+    declared = {p.name: p.default for p in watchdog_node.PARAMETERS}
+    # every option is a watchdog parameter and a DriftMonitor argument of the same name
+    assert set(MONITOR_PARAMETERS) <= set(declared)
+    assert set(MONITOR_PARAMETERS) <= set(inspect.signature(DriftMonitor).parameters)
+    nodes = monitor_from_parameters(declared)
+    plain = DriftMonitor()
+    for name in ('reference', 'tolerances', 'noise_floor', *MONITOR_PARAMETERS):
+        assert getattr(nodes, name) == getattr(plain, name), name
+    # values reach the monitor (step_fraction too: it was once left out offline)
+    custom = monitor_from_parameters({**declared, 'step_fraction': 0.8, 'n_sigma': 2.0,
+                                      'tolerances.omega_1': 0.02, 'reference.k0': 3.0e6,
+                                      'hardware_id': 'ignored'})
+    assert (custom.step_fraction, custom.n_sigma) == (0.8, 2.0)
+    assert custom.tolerances['omega_1'] == 0.02
+    assert custom.reference.k0 == 3.0e6
+    assert monitor_from_parameters({}).reference == REFERENCE_MODEL  # missing: defaults
+    with pytest.raises(ConfigurationError, match='bad watchdog parameter'):
+        monitor_from_parameters({'reference.k0': 'heavy'})
+    with pytest.raises(ConfigurationError, match='tolerance'):
+        monitor_from_parameters({'tolerances.k0': -1.0})
+    with pytest.raises(ConfigurationError, match='unknown'):
+        monitor_from_parameters({'tolerances.k9': 0.1})

@@ -326,3 +326,17 @@ def test_lost_messages_windows_complete_from_the_moves_that_arrived() -> None:
     complete = 120 - len(lost)
     assert len(windows) == complete // 20  # one angle: one window per 20 complete moves
     assert w.moves_accepted == complete
+
+
+def test_windower_parameters_are_the_sysid_nodes() -> None:
+    import inspect
+
+    from galvo_sysid.nodes import sysid_node
+    from galvo_sysid.pairing import WINDOWER_PARAMETERS
+
+    declared = {p.name: p.default for p in sysid_node.PARAMETERS}
+    assert set(WINDOWER_PARAMETERS) <= set(declared)
+    assert set(WINDOWER_PARAMETERS) <= set(inspect.signature(MoveWindower).parameters)
+    defaults = MoveWindower()
+    for name in WINDOWER_PARAMETERS:
+        assert getattr(defaults, name) == declared[name], name

@@ -37,6 +37,7 @@ from galvo_sysid.nodes._common import (
     scanner_name,
 )
 from galvo_sysid.online import FitOutcome, SysidTask, fit_window
+from galvo_sysid.pairing import WINDOWER_PARAMETERS
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -79,8 +80,6 @@ PARAMETERS = (
               'seconds (0: never)', 0.0, 1e6, read_only=True),
     ParamSpec('hardware_id', '', "the scanner's name in diagnostics (default: the namespace)"),
 )
-_WINDOWER_KEYS = ('window_size', 'samples', 'max_samples', 'pair_timeout', 'time_jump',
-                  'max_pending', 'max_windows', 'max_buffered_samples')
 
 
 def _validate(values: dict[str, Any]) -> str | None:
@@ -127,7 +126,7 @@ class SysidNode(Node):
 
     @staticmethod
     def _windower_args(values: dict[str, Any]) -> dict[str, Any]:
-        return {k: values[k] for k in _WINDOWER_KEYS}
+        return {k: values[k] for k in WINDOWER_PARAMETERS}
 
     @staticmethod
     def _fit_function(values: dict[str, Any]) -> functools.partial[Any]:
@@ -135,7 +134,7 @@ class SysidNode(Node):
                                  options={'na': values['na'], 'nb': values['nb']})
 
     def _apply(self, values: dict[str, Any], changed: set[str]) -> None:
-        if changed & set(_WINDOWER_KEYS):
+        if changed & set(WINDOWER_PARAMETERS):
             from galvo_sysid.pairing import MoveWindower
 
             old = self.task.windower

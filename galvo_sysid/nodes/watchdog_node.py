@@ -26,9 +26,10 @@ from galvo_sysid.drift import (
     OK,
     STALE,
     WARN,
-    DriftMonitor,
     DriftVerdict,
+    monitor_from_parameters,
     parameter_names,
+    reference_from_parameters,
 )
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError
 from galvo_sysid.messages import (
@@ -52,7 +53,7 @@ from galvo_sysid.nodes._common import (
     scanner_name,
 )
 from galvo_sysid.online import WatchdogTask
-from galvo_sysid.plant import REFERENCE_MODEL, ModalModel
+from galvo_sysid.plant import REFERENCE_MODEL
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -95,34 +96,16 @@ PARAMETERS = (
 )
 
 
-def _reference(values: dict[str, Any]) -> ModalModel:
-    return ModalModel(k0=float(values['reference.k0']),
-                      residues=tuple(float(x) for x in values['reference.residues']),
-                      natural_frequencies=tuple(
-                          float(x) for x in values['reference.natural_frequencies']),
-                      damping_ratios=tuple(float(x) for x in values['reference.damping_ratios']))
-
-
-def _monitor(values: dict[str, Any]) -> DriftMonitor:
-    return DriftMonitor(
-        reference=_reference(values),
-        tolerances={n: values[f'tolerances.{n}'] for n in _NAMES},
-        warn_fraction=values['warn_fraction'], n_sigma=values['n_sigma'],
-        trend_windows=values['trend_windows'], trend_min_windows=values['trend_min_windows'],
-        trend_sigma=values['trend_sigma'], trend_fraction=values['trend_fraction'],
-        step_fraction=values['step_fraction'], min_fit_percent=values['min_fit_percent'])
-
-
 def _validate(values: dict[str, Any]) -> str | None:
     try:
-        model = _reference(values)
+        model = reference_from_parameters(values)
     except ConfigurationError as err:
         return f'reference model: {err}'
     if model.n_modes != REFERENCE_MODEL.n_modes:
         return (f'the reference must have {REFERENCE_MODEL.n_modes} resonant modes like the '
                 f'identification, got {model.n_modes}')
     try:
-        _monitor(values)
+        monitor_from_parameters(values)
     except ConfigurationError as err:
         return str(err)
     return None
@@ -136,7 +119,7 @@ class WatchdogNode(Node):
         self.log = logger(self)
         self.params = ParameterSet(self, PARAMETERS, validate=_validate, apply=self._apply)
         v = self.params.values
-        self.task = WatchdogTask(_monitor(v), stale_timeout=v['stale_timeout'])
+        self.task = WatchdogTask(monitor_from_parameters(v), stale_timeout=v['stale_timeout'])
         self.scanner = scanner_name(self, v['hardware_id'])
         self.drift = self.create_publisher(DriftStatus, DRIFT_TOPIC, results_qos())
         self.diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC,
@@ -155,7 +138,7 @@ class WatchdogNode(Node):
         if 'stale_timeout' in changed:
             self.task.stale_timeout = float(values['stale_timeout'])
         if changed - {'hardware_id', 'stale_timeout'}:
-            self.task.monitor = _monitor(values)
+            self.task.monitor = monitor_from_parameters(values)
             self.log.info('reference or tolerances changed: trend history restarted')
 
     def _on_result(self, msg: ModalParameters) -> None:
