@@ -30,16 +30,21 @@ if TYPE_CHECKING:
 
     from galvo_sysid.offline import BagIdentification
 
-__all__ = ['PLUGINS', 'build_parser', 'main', 'parse_angle']
+__all__ = ['COMMANDS', 'PLUGINS', 'build_parser', 'main', 'parse_angle']
 
 PROG = 'galvo-sysid'
 
 PLUGINS = ('galvo_sysid.discrepancy_cli',)
 """Modules that add subcommands if present: each defines ``register(subparsers)``, which adds
 its parser(s) and sets ``func`` (``args -> exit code``) as the parser default. ``register``
-runs for every command (also ``echo`` and ``--help``), so it should import nothing heavy:
-the numerics belong in ``func``. Errors derived from ``GalvoSysidError`` raised by ``func``
-become one line on stderr and exit code 1."""
+runs for every command except the built-in ones of :data:`COMMANDS` (so also for ``--help``
+and the plugins' own commands); it should import nothing heavy: the numerics belong in
+``func``. Errors derived from ``GalvoSysidError`` raised by ``func`` become one line on
+stderr and exit code 1."""
+
+COMMANDS = ('simulate', 'identify', 'info', 'record', 'replay', 'echo')
+"""The built-in subcommands: running one of them registers no plugin (process start counts,
+e.g. in identify's speed against real time)."""
 
 _PSI = 0.3
 
@@ -122,8 +127,9 @@ def _positive(kind: type[int] | type[float]) -> Any:
 # --------------------------------------------------------------------------- parser
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser with every subcommand (and plugins found installed)."""
+def build_parser(*, plugins: bool = True) -> argparse.ArgumentParser:
+    """The argument parser with every subcommand (and, if ``plugins``, those of
+    :data:`PLUGINS` found installed)."""  # noqa: D205, D209
     parser = argparse.ArgumentParser(prog=PROG, description=_MAIN_HELP, epilog=_MAIN_EPILOG,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     from galvo_sysid import __version__
@@ -136,7 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_record(sub)
     _add_replay(sub)
     _add_echo(sub)
-    for name in PLUGINS:
+    for name in PLUGINS if plugins else ():
         if importlib.util.find_spec(name) is not None:
             importlib.import_module(name).register(sub)
     return parser
@@ -581,8 +587,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     # Set before numpy is imported; an explicit setting in the environment wins.
     for name in _BLAS_THREADS:
         os.environ.setdefault(name, '1')
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    words = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(plugins=not words or words[0] not in COMMANDS)
+    args = parser.parse_args(words)
     from galvo_sysid.errors import GalvoSysidError
 
     where = f'{PROG} {args.command}'

@@ -338,3 +338,20 @@ def test_node_parameter_files(venv_bin: Path, sim_bag: Path, tmp_path: Path) -> 
         assert w['drift']['level'] == 'ERROR'
     assert_one_line_error(run(venv_bin, 'identify', sim_bag, '--sysid-params',
                               tmp_path / 'missing.yaml'), 'cannot read parameter file')
+
+
+def test_builtin_commands_register_no_plugin(sim_bag: Path) -> None:
+    import argparse
+    import sys
+
+    from galvo_sysid import cli
+
+    parser = cli.build_parser(plugins=False)
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    assert set(sub.choices) == set(cli.COMMANDS)
+    code = ('import sys\nfrom galvo_sysid import cli\n'
+            f'rc = cli.main(["info", {str(sim_bag)!r}])\n'
+            'print(rc, sorted(m for m in sys.modules if m.startswith(tuple(cli.PLUGINS))))\n')
+    proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          check=False, timeout=60)
+    assert proc.stdout.splitlines()[-1] == '0 []', proc.stdout + proc.stderr
