@@ -2,7 +2,8 @@
 
 The target (issue 5): a bag of the paper's 19 angles x 200 moves (3,800 moves, about 23 s of
 scanner time, 38 windows of 100 moves) identified at least 10x faster than real time, with the
-process start included. Each run is a fresh ``galvo-sysid identify BAG --json`` process, timed
+process start included (and the pooled estimate: one joint fit of all windows, see
+:mod:`galvo_sysid.offline`). Each run is a fresh ``galvo-sysid identify BAG --json`` process, timed
 by wall clock, best and median of ``--repeat`` runs (on a shared machine the best run shows
 what the code costs, the median what a busy machine gives). Also printed: how the time grows
 with the number of windows (bags of 1, 2, 5, 10 and 19 angles) and the process start alone
@@ -87,6 +88,10 @@ def main() -> int:
         slope = (t1 - t0) / (w1 - w0)
         print(f'\nbest runs: time grows linearly with the windows, about {1e3 * slope:.0f} ms '
               f'per window (wall, fits in parallel) on top of {t0 - slope * w0:.2f} s')
+        pooled = out.get('pooled') or {}
+        print(f'pooled estimate of the last bag: {pooled.get("pooling")} over '
+              f'{pooled.get("pooled_windows")} windows'
+              + (f' ({pooled["pooling_note"]})' if pooled.get('pooling_note') else ''))
         _, _, full, full_median = rows[-1]
         print(f'19 angles x 200 moves: {full:.2f} s best, {full_median:.2f} s median for '
               f'23.0 s of scanner time = {23.03 / full:.1f}x / {23.03 / full_median:.1f}x '
