@@ -43,9 +43,11 @@ lint: setup
 	$(VENV)/bin/ruff check galvo_sysid test benchmarks tools
 	$(VENV)/bin/mypy galvo_sysid
 
+# Speed and accuracy figures (tables on stdout; latest output in docs/benchmarks.md).
+BENCHMARKS := accuracy paper_pipeline simulator_speed offline_speed sysid_throughput \
+              sysid_load discrepancy_confusion
 bench: setup
-	$(VPY) benchmarks/accuracy.py
-	$(VPY) benchmarks/sysid_throughput.py
+	set -e; for b in $(BENCHMARKS); do echo "== benchmarks/$$b.py"; $(VPY) benchmarks/$$b.py; done
 
 clean:
 	rm -rf build install log $(VENV)
