@@ -126,7 +126,7 @@ def report(rows: list[dict[str, Any]]) -> bool:
         gb = statistics.median(r['gap_before'] for r in sel)
         ga = statistics.median(r['gap_after'] for r in sel)
         secs = statistics.mean(r['seconds'] for r in sel)
-        halved_txt = f'{halved}/{with_gap}' if with_gap else '-'
+        halved_txt = f'{halved}/{with_gap}' if with_gap and effect != 'none' else '-'
         print(f'{effect:<20} {label:<10} {hits:>3}/{n:<3} {errs:<29} {gb:>10.3g} {ga:>9.3g} '
               f'{halved_txt:>7} {secs:>6.1f}')
         if effect != 'none' and halved < with_gap:

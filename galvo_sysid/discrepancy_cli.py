@@ -110,7 +110,8 @@ def _arguments(p: argparse.ArgumentParser, threshold: float,
     p.add_argument('--effects', nargs='+', choices=list(effect_names), metavar='NAME',
                    default=list(effect_names), help='candidate effects to try')
     p.add_argument('--max-moves-per-angle', type=_positive_int, default=None, metavar='N',
-                   help='use at most N moves of each signed target angle (the first)')
+                   help='use at most N moves of each signed target angle (the first; '
+                        'default: all)')
     p.add_argument('--namespace', metavar='NS',
                    help='scanner namespace when the bag holds several (e.g. /left)')
 

@@ -194,21 +194,24 @@ def _plot_moves(result: DiscrepancyResult, path: Path) -> None:
 
 def _plot_candidates(result: DiscrepancyResult, path: Path) -> None:
     plt = _pyplot()
-    rounds = [result.candidates] + [s.candidates for s in result.steps[1:]]
+    rounds = list(result.rounds)
     fig, axes = plt.subplots(1, len(rounds), figsize=(4.5 * len(rounds), 3.6), squeeze=False)
     for i, cands in enumerate(rounds):
         ax = axes[0][i]
         names = [c.effect for c in cands]
         scores = [c.score for c in cands]
-        colors = ['tab:green' if j == 0 and s > result.threshold else 'tab:gray'
-                  for j, s in enumerate(scores)]
+        accepted = i < len(result.steps)
+        colors = ['tab:green' if j == 0 and accepted else 'tab:gray'
+                  for j in range(len(scores))]
         ax.barh(range(len(names)), scores, color=colors)
         ax.set_yticks(range(len(names)), names, fontsize=8)
         ax.invert_yaxis()
         ax.set_xscale('symlog', linthresh=10)
         ax.axvline(result.threshold, color='tab:red', ls='--', lw=1, label='threshold')
         ax.set_xlabel('score (BIC drop)', fontsize=8)
-        ax.set_title(f'round {i + 1}', fontsize=9)
+        title = (f'round {i + 1}: {result.steps[i].effect} added' if accepted else
+                 f'round {i + 1}: nothing added')
+        ax.set_title(title, fontsize=9)
         ax.grid(True, axis='x', alpha=0.3)
         if i == 0:
             ax.legend(fontsize=7)
