@@ -188,21 +188,36 @@ class Graph:
     def set_parameters(self, node_name: str, params: list[Parameter]) -> list[Any]:
         """Set parameters one call each (so one rejection does not hide another)."""
         client = self._client(node_name)
-        out = []
-        for p in params:
-            future = client.set_parameters([p])
-            self.spin_until(future.done, 20, f'set_parameters {p.name}')
-            out.append(future.result().results[0])
-        return out
+        return [self._call(lambda p=p: client.set_parameters([p]), f'set_parameters {p.name}')
+                .results[0] for p in params]
+
+    def set_parameters_together(self, node_name: str, params: list[Parameter]) -> list[Any]:
+        """Set parameters in one request (the node's callback sees them one by one)."""
+        client = self._client(node_name)
+        return list(self._call(lambda: client.set_parameters(params), 'set_parameters').results)
+
+    def _call(self, request: Callable[[], Any], what: str, *, attempts: int = 4,
+              timeout: float = 5.0) -> Any:
+        """Send a service request, again if no answer came (a fresh client's first request
+        can be lost while the server has not yet discovered the client's response reader)."""
+        for _ in range(attempts - 1):
+            future = request()
+            end = time.monotonic() + timeout
+            while not future.done() and time.monotonic() < end:
+                self.executor.spin_once(timeout_sec=0.05)
+            if future.done():
+                return future.result()
+            future.cancel()
+        future = request()
+        self.spin_until(future.done, timeout, what)
+        return future.result()
 
     def get_parameters(self, node_name: str, names: list[str]) -> dict[str, Any]:
         """Current values (plain Python) of ``names``."""
         from rclpy.parameter import parameter_value_to_python
 
         client = self._client(node_name)
-        future = client.get_parameters(names)
-        self.spin_until(future.done, 20, 'get_parameters')
-        values = future.result().values
+        values = self._call(lambda: client.get_parameters(names), 'get_parameters').values
         return {n: parameter_value_to_python(v) for n, v in zip(names, values, strict=True)}
 
     def close(self) -> None:

@@ -15,30 +15,24 @@
 from __future__ import annotations
 
 import math
-import signal
-import subprocess
 import time
 from typing import TYPE_CHECKING, Any
 
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from galvo_sysid_msgs.msg import DriftStatus, ModalParameters, MoveSamples
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from ros_graph import Graph
 
 from galvo_sysid.messages import fill, fill_header, move_samples_fields
 from galvo_sysid.plant import REFERENCE_MODEL
 from galvo_sysid.simulator import GalvoSimulator
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterator
+    from collections.abc import Iterator
     from pathlib import Path
 
-    from rclpy.node import Node
 
 REF = REFERENCE_MODEL
 RESULTS_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
@@ -46,84 +40,9 @@ RESULTS_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
 MOVES_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
 
-class Proc:
-    """A node started as a child process, its console output in a file."""
-
-    def __init__(self, venv_bin: Path, exe: str, log: Path, *args: str) -> None:
-        self.log = log
-        self._file = log.open('w')
-        self.popen = subprocess.Popen([str(venv_bin / exe), '--ros-args', *args],
-                                      stdout=self._file, stderr=subprocess.STDOUT)
-
-    def stop(self) -> int:
-        if self.popen.poll() is None:
-            self.popen.send_signal(signal.SIGINT)
-            try:
-                self.popen.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.popen.kill()
-                self.popen.wait(timeout=10)
-        self._file.close()
-        return self.popen.returncode
-
-    def text(self) -> str:
-        if not self._file.closed:
-            self._file.flush()
-        return self.log.read_text()
-
-
-class Graph:
-    """The test's own rclpy node, and the processes it started (stopped at the end)."""
-
-    def __init__(self, venv_bin: Path, tmp: Path) -> None:
-        self.venv_bin = venv_bin
-        self.tmp = tmp
-        self.procs: list[Proc] = []
-        self.context = Context()
-        rclpy.init(context=self.context)
-        self.node: Node = rclpy.create_node('integration_test', context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-
-    def start(self, exe: str, name: str, *args: str) -> Proc:
-        proc = Proc(self.venv_bin, exe, self.tmp / f'{name}.log', *args)
-        self.procs.append(proc)
-        return proc
-
-    def spin_until(self, done: Callable[[], bool], timeout: float, what: str) -> None:
-        end = time.monotonic() + timeout
-        while not done():
-            if time.monotonic() > end:
-                logs = '\n'.join(f'--- {p.log.name}\n{p.text()[-3000:]}' for p in self.procs)
-                pytest.fail(f'timed out after {timeout} s waiting for {what}\n{logs}')
-            self.executor.spin_once(timeout_sec=0.05)
-
-    def set_parameters(self, node_name: str, params: list[Parameter]) -> list[Any]:
-        client = AsyncParameterClient(self.node, node_name)
-        self.spin_until(lambda: client.services_are_ready(), 20, f'{node_name} parameters')
-        future = client.set_parameters(params)
-        self.spin_until(future.done, 20, 'set_parameters')
-        results = future.result().results  # type: ignore[union-attr]
-        return list(results)
-
-    def get_parameter(self, node_name: str, name: str) -> Any:
-        client = AsyncParameterClient(self.node, node_name)
-        self.spin_until(lambda: client.services_are_ready(), 20, f'{node_name} parameters')
-        future = client.get_parameters([name])
-        self.spin_until(future.done, 20, 'get_parameters')
-        return future.result().values[0]  # type: ignore[union-attr]
-
-    def close(self) -> None:
-        for p in self.procs:
-            p.stop()
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.shutdown(context=self.context)
-
-
 @pytest.fixture
 def graph(venv_bin: Path, tmp_path: Path) -> Iterator[Graph]:
-    g = Graph(venv_bin, tmp_path)
+    g = Graph(venv_bin, tmp_path, name='integration_test')
     try:
         yield g
     finally:
@@ -182,8 +101,7 @@ def test_live_identification_drift_stale_and_recovery(graph: Graph) -> None:
     assert ok[2] == 'scanner_a: plant drift'
 
     # 2. sysid killed mid-window (SIGKILL) and restarted: it resumes, its windows are whole
-    sysid.popen.kill()
-    sysid.popen.wait(timeout=10)
+    sysid.kill()
     killed = time.monotonic()
     before = len(results)
     sysid = graph.start('sysid', 'sysid2', '-r', remap, '-p', 'stats_period:=0.0')
@@ -197,7 +115,7 @@ def test_live_identification_drift_stale_and_recovery(graph: Graph) -> None:
 
     # 3. the plant changes live: omega_1 steps down 3 %
     seen = len(results)
-    out = graph.set_parameters(f'{ns}/galvo_driver', [
+    out = graph.set_parameters_together(f'{ns}/galvo_driver', [
         Parameter('step.parameter', value='omega_1'), Parameter('step.factor', value=0.97)])
     assert all(r.successful for r in out)
 
@@ -308,8 +226,8 @@ def test_bad_moves_are_set_aside_and_the_window_completes(graph: Graph) -> None:
     assert '> 0' in out[0].reason
     out = graph.set_parameters(f'{ns}/sysid', [Parameter('method', value='magic')])
     assert not out[0].successful
-    assert graph.get_parameter(f'{ns}/sysid', 'window_size').integer_value == 10
-    assert graph.get_parameter(f'{ns}/sysid', 'method').string_value == 'refined'
+    assert graph.get_parameters(f'{ns}/sysid', ['window_size', 'method']) == {
+        'window_size': 10, 'method': 'refined'}
 
     graph.spin_until(lambda: 'unpaired' in sysid.text(), 10, 'the missing partner reported')
     graph.spin_until(lambda: any(d[0] == 1 and 'set aside' in d[2] for d in diags), 10,
