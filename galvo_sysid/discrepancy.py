@@ -27,11 +27,11 @@ Naming an effect: each candidate of :data:`~galvo_sysid.model_io.EFFECT_NAMES` i
 (its parameters minimise J) and scored by the drop of the Bayesian information criterion,
 score = 2 (J_model - J_candidate) - p ln(n) (p fitted parameters, n real data points; the
 unmodelled resonance pays 2 ln(bins) more for picking its frequency). The best candidate is
-accepted when its score exceeds ``threshold``; the residual's whiteness (largest band excess
-of z^2) is reported next to it. The accepted effect is added to the model, the effects
-added so far are refitted together, and the search repeats while the gap stays above the
-noise, so several effects are found in turn. ``none`` is the answer when no candidate is
-worth its parameters.
+accepted when its score exceeds ``threshold`` and it closes at least a quarter of the gap; the
+residual's whiteness (largest band excess of z^2) is reported next to it. The accepted effect
+is added to the model, the effects added so far are refitted together, and the search repeats
+while the gap stays above the noise, so several effects are found in turn. ``none`` is the
+answer when no candidate is worth its parameters.
 """
 
 from __future__ import annotations
@@ -1271,7 +1271,8 @@ class DiscrepancyResult:
 
 def find_discrepancy(moves: MoveSet, model: PlantModel = NOMINAL_MODEL, *,
                      threshold: float = DEFAULT_THRESHOLD, max_effects: int = 3,
-                     min_gap: float | None = None, effects: Sequence[str] = EFFECT_NAMES,
+                     min_gap: float | None = None, min_improvement: float = 0.25,
+                     effects: Sequence[str] = EFFECT_NAMES,
                      progress: Callable[[str], None] | None = None) -> DiscrepancyResult:
     """Compare a model with measured moves, name the missing effects and add them.
 
@@ -1283,6 +1284,9 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = NOMINAL_MODEL, *,
         min_gap: After an effect is added, the search goes on only while the gap is at
             least this; default :attr:`Comparison.noise_gap` (below it the model explains the
             moves within the noise).
+        min_improvement: A candidate is accepted only if it also closes at least this
+            fraction of the gap (statistically significant but practically irrelevant
+            additions are left out).
         effects: Candidate effects to try.
         progress: Called with a short text before each candidate fit.
 
@@ -1296,8 +1300,9 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = NOMINAL_MODEL, *,
     unknown = [e for e in effects if e not in EFFECT_PARAMETERS]
     if unknown:
         raise ConfigurationError(f'unknown effect(s) {unknown}; expected {EFFECT_NAMES}')
-    if not (math.isfinite(threshold) and max_effects >= 0):
-        raise ConfigurationError('threshold must be finite and max_effects >= 0')
+    if not (math.isfinite(threshold) and max_effects >= 0 and 0 <= min_improvement < 1):
+        raise ConfigurationError(
+            'threshold must be finite, max_effects >= 0 and 0 <= min_improvement < 1')
     comp = Comparison(moves, model)
     if min_gap is None:
         min_gap = comp.noise_gap
@@ -1320,7 +1325,8 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = NOMINAL_MODEL, *,
         if first is None:
             first = ranked
         best = ranked[0]
-        if best.effect == 'none' or best.score <= threshold or max_effects == 0:
+        relevant = best.gap <= (1.0 - min_improvement) * fits[0].gap
+        if best.effect == 'none' or best.score <= threshold or not relevant or max_effects == 0:
             break
         current = best.model
         index = (len(current.effects) - 1 if best.effect == 'unmodeled_resonance' else

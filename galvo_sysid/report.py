@@ -88,7 +88,7 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
     if not result.steps:
         lines.append('found: none - the model explains the moves within the noise' if
                      result.gap_before < result.noise_gap else
-                     'found: none - no candidate effect is worth its parameters')
+                     'found: none - no candidate effect explains the gap')
     else:
         lines.append(f'found: {result.effect} ({_params(result.parameters, t)})')
         for i, s in enumerate(result.steps, start=1):
@@ -148,9 +148,10 @@ def _plot_spectra(result: DiscrepancyResult, path: Path) -> None:
         ax.legend(fontsize=7, loc='upper right')
         if g // cols == rows - 1:
             ax.set_xlabel('frequency [Hz]')
-    fig.suptitle('Residual spectra (start-state responses removed) vs noise floor', fontsize=10)
+    fig.suptitle('Mean residual spectra (random ringing of the modes projected out) vs the '
+                 'noise floor of the mean', fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
@@ -188,7 +189,7 @@ def _plot_moves(result: DiscrepancyResult, path: Path) -> None:
     fig.suptitle('Mean of the moves: measured vs simulated (driven by the measured current)',
                  fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
@@ -209,15 +210,19 @@ def _plot_candidates(result: DiscrepancyResult, path: Path) -> None:
         ax.set_xscale('symlog', linthresh=10)
         ax.axvline(result.threshold, color='tab:red', ls='--', lw=1, label='threshold')
         ax.set_xlabel('score (BIC drop)', fontsize=8)
-        title = (f'round {i + 1}: {result.steps[i].effect} added' if accepted else
-                 f'round {i + 1}: nothing added')
+        if accepted:
+            title = f'round {i + 1}: {result.steps[i].effect} added'
+        elif cands[0].effect != 'none' and cands[0].score > result.threshold:
+            title = f'round {i + 1}: nothing added (closes < 1/4 of the gap)'
+        else:
+            title = f'round {i + 1}: nothing added'
         ax.set_title(title, fontsize=9)
         ax.grid(True, axis='x', alpha=0.3)
         if i == 0:
             ax.legend(fontsize=7)
     fig.suptitle('Candidate effects', fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
@@ -235,10 +240,11 @@ def _plot_where(result: DiscrepancyResult, path: Path) -> None:
         x = np.arange(len(loc.phases)) + (j - 0.5 * (len(pairs) - 1)) * width
         axes[1].bar(x, list(loc.phases.values()), width=width, color=color, label=label)
         axes[2].loglog(loc.angles, np.maximum(loc.gaps, 1e-3), 'o-', color=color, label=label)
-    axes[0].axhline(3, color='0.4', ls='--', lw=1)
+    axes[0].axhline(5, color='0.4', ls='--', lw=1, label='significant')
     axes[0].set_xlabel('frequency [Hz]')
     axes[0].set_ylabel('excess of z^2 [noise std]')
-    axes[0].set_yscale('symlog', linthresh=3)
+    axes[0].set_yscale('symlog', linthresh=5)
+    axes[0].set_ylim(bottom=-5)
     axes[0].set_title('by frequency band', fontsize=9)
     axes[1].set_xticks(range(len(result.where.phases)), list(result.where.phases), fontsize=8)
     axes[1].set_ylabel('share of the excess per sample')
@@ -250,7 +256,7 @@ def _plot_where(result: DiscrepancyResult, path: Path) -> None:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 

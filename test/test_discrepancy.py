@@ -232,6 +232,8 @@ def test_bad_data_is_refused():
         Comparison(ok, replace(NOMINAL_MODEL, sample_period=2 * TAU))
     with pytest.raises(ConfigurationError, match='unknown effect'):
         find_discrepancy(ok, effects=['magic'])
+    with pytest.raises(ConfigurationError, match='min_improvement'):
+        find_discrepancy(ok, min_improvement=1.0)
 
 
 def test_report_files(tmp_path):
