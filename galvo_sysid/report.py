@@ -89,6 +89,8 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
         lines.append('found: none - the model explains the moves within the noise' if
                      result.gap_before < result.noise_gap else
                      'found: none - no candidate effect explains the gap')
+        if result.gap_before >= result.noise_gap:
+            lines.extend(_mode_hint(result))
     else:
         lines.append(f'found: {result.effect} ({_params(result.parameters, t)})')
         for i, s in enumerate(result.steps, start=1):
@@ -103,6 +105,17 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
         lines.append('where the final model still disagrees:')
         lines.extend('  ' + line for line in result.where_after.summary())
     return '\n'.join(lines) + '\n'
+
+
+def _mode_hint(result: DiscrepancyResult) -> list[str]:
+    """A hint when the unexplained residual sits at the model's own modes."""
+    freqs = [w / (2 * math.pi) for w in result.initial_model.modal.natural_frequencies]
+    hits = sorted({f for b in result.where.main_bands for f in freqs if b.low <= f <= b.high})
+    if not hits:
+        return []
+    where = ', '.join(f'{f / 1e3:.3g} kHz' for f in hits)
+    return [f'  the residual sits at the mode(s) of the model at {where}: their modal '
+            f'parameters may be off or drifting - identify them (galvo-sysid identify)']
 
 
 # --------------------------------------------------------------------------- figures

@@ -321,3 +321,20 @@ def test_angles_with_too_few_moves_are_set_aside(tmp_path):
     assert 'noise floor needs 3' in rejected[0]['reason']
     with pytest.raises(InvalidDataError, match='no target angle has 9'):
         read_moves(path, min_moves=9)
+
+
+def test_a_drifting_mode_is_not_blamed_on_a_candidate(repo):
+    """bags/drifting: omega_1 drifts during the bag, which no candidate effect is; the
+    workflow says none, shows the gap at mode 1 and points to identification."""
+    from galvo_sysid.report import format_result
+
+    bag = repo / 'bags' / 'drifting'
+    if not bag.exists():
+        pytest.skip('sample bag not present')
+    moves, _ = read_moves(bag)
+    result = find_discrepancy(moves, max_effects=1)
+    assert result.effect == 'none'
+    assert result.gap_before > result.noise_gap
+    band = result.where.main_bands[0]
+    assert band.low < 7.108e4 / (2 * math.pi) < band.high
+    assert 'galvo-sysid identify' in format_result(result)
