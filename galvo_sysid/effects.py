@@ -518,7 +518,10 @@ def sample_plant(spec: PlantSpec, *, sample_period: float = TAU,
         ex = expm_balanced(aug * t)
         return ex[:n, :n], ex[:n, n], ex[:n, n + 1]
 
-    delay = spec.dynamics.computation_delay * sample_period + spec.effects.dead_time
+    # Pure input delay: the computation delay, any dead time of the input dynamics and the
+    # input_delay effect's extra dead time.
+    delay = (spec.dynamics.computation_delay * sample_period + spec.dynamics.dead_time
+             + spec.effects.dead_time)
     whole_f, frac = divmod(delay, sample_period)
     whole = round(whole_f)
     eps = 1e-9 * sample_period

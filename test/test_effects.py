@@ -51,6 +51,18 @@ def test_sampling_matches_plant_discretisation(dead_time: float, lag: float,
     np.testing.assert_allclose(y, ref, atol=1e-12 * np.abs(ref).max())
 
 
+def test_dead_time_of_the_input_dynamics_is_honoured() -> None:
+    # The same total delay given in InputDynamics instead of as an effect: same plant.
+    u = np.random.default_rng(2).normal(size=200)
+    dynamics = InputDynamics(computation_delay=1, lag_time_constant=0.0, dead_time=0.6 * TAU)
+    ref = simulate(REFERENCE_MODEL, dynamics, u, sample_period=TAU)
+    y = _run(PlantSpec(dynamics=dynamics), u)
+    np.testing.assert_allclose(y, ref, atol=1e-12 * np.abs(ref).max())
+    as_effect = _run(PlantSpec(dynamics=InputDynamics(lag_time_constant=0.0),
+                               effects=PlantEffects(dead_time=0.6 * TAU)), u)
+    np.testing.assert_allclose(y, as_effect, atol=1e-12 * np.abs(ref).max())
+
+
 def test_disturbance_drive_split_over_substeps_sums_to_the_sample() -> None:
     sp = sample_plant(PlantSpec(), substeps=7)
     np.testing.assert_allclose(sp.gamma_d.sum(axis=1), sp.g_d, rtol=1e-12, atol=1e-20)
