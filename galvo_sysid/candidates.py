@@ -39,6 +39,7 @@ from scipy.linalg import expm
 from scipy.signal import lfilter
 
 from galvo_sysid.errors import ConfigurationError, InvalidDataError
+from galvo_sysid.plant import modal_state_space
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray
@@ -260,26 +261,12 @@ class PlantSimulator:
         gains = [ph.k0, *ph.residues]
         freqs = [ph.pivot_frequency, *ph.natural_frequencies]
         damps = [0.0, *ph.damping_ratios]
-        lag = ph.lag
-        off = 1 if lag > 0 else 0
-        n = off + 2 * len(gains)
-        a = np.zeros((n, n))
-        drive = np.zeros(n)                     # mechanics' drive per unit torque current
-        c = np.zeros(n)
-        for i, (k, w, z) in enumerate(zip(gains, freqs, damps, strict=True)):
-            p, v = off + 2 * i, off + 2 * i + 1
-            a[p, v] = 1.0
-            a[v, p] = -w * w
-            a[v, v] = -2 * z * w
-            drive[v] = k
-            c[p] = 1.0
-        b_u = np.zeros(n)
-        if lag > 0:
-            a[0, 0] = -1.0 / lag
-            b_u[0] = 1.0 / lag
-            a[off:, 0] = ph.gain_ratio * drive[off:]
-        else:
-            b_u = ph.gain_ratio * drive
+        off = 1 if ph.lag > 0 else 0
+        # drive: the mechanics' input per unit torque current
+        a, b_u, drive, c = modal_state_space(gains=gains, frequencies=freqs, dampings=damps,
+                                             lag_time_constant=ph.lag,
+                                             input_gain=ph.gain_ratio)
+        n = a.shape[0]
         self._a, self._c, self._drive, self._off = a, c, drive, off
         t = sample_period
         self._phi, _ = _zoh(a, b_u[:, None], t)

@@ -42,7 +42,13 @@ import numpy as np
 from scipy.linalg import matrix_balance
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.plant import REFERENCE_MODEL, TAU, InputDynamics, ModalModel
+from galvo_sysid.plant import (
+    REFERENCE_MODEL,
+    TAU,
+    InputDynamics,
+    ModalModel,
+    modal_state_space,
+)
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -400,24 +406,8 @@ def continuous_plant(spec: PlantSpec) -> ContinuousPlant:
              *(r.natural_frequency for r in e.resonances)]
     damps = [0.0, *m.damping_ratios, *(r.damping_ratio for r in e.resonances)]
     off = 1 if lag > 0 else 0
-    n = off + 2 * len(gains)
-    a = np.zeros((n, n))
-    b_d = np.zeros(n)
-    c = np.zeros(n)
-    for i, (k, w, z) in enumerate(zip(gains, freqs, damps, strict=True)):
-        p, v = off + 2 * i, off + 2 * i + 1
-        a[p, v] = 1.0
-        a[v, p] = -w * w
-        a[v, v] = -2 * z * w
-        b_d[v] = k
-        c[p] = 1.0
-    b_u = np.zeros(n)
-    if lag > 0:
-        a[0, 0] = -1.0 / lag
-        b_u[0] = 1.0 / lag
-        a[1:, 0] = e.gain_ratio * b_d[1:]
-    else:
-        b_u = e.gain_ratio * b_d
+    a, b_u, b_d, c = modal_state_space(gains=gains, frequencies=freqs, dampings=damps,
+                                       lag_time_constant=lag, input_gain=e.gain_ratio)
     return ContinuousPlant(a=a, b_u=b_u, b_d=b_d, c=c, current_index=0 if lag > 0 else None,
                            position_index=off, velocity_index=off + 1)
 

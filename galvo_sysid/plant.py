@@ -26,6 +26,8 @@ from scipy.linalg import expm
 from galvo_sysid.errors import ConfigurationError, InvalidDataError
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
@@ -38,6 +40,7 @@ __all__ = [
     'InputDynamics',
     'ModalModel',
     'discretize',
+    'modal_state_space',
     'relative_errors',
     'simulate',
 ]
@@ -172,34 +175,46 @@ class DiscreteStateSpace:
     c: NDArray[np.float64]
 
 
-def _continuous(model: ModalModel, lag: float) -> tuple[NDArray[np.float64], NDArray[np.float64],
-                                                        NDArray[np.float64]]:
-    """Continuous state space of lag(s) * P_mech(s); the lag state (if any) comes first."""
-    n_mech = 2 + 2 * model.n_modes
-    n = n_mech + (1 if lag > 0 else 0)
+def modal_state_space(*, gains: Sequence[float], frequencies: Sequence[float],
+                      dampings: Sequence[float], lag_time_constant: float,
+                      input_gain: float = 1.0) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                                         NDArray[np.float64], NDArray[np.float64]]:
+    """Continuous state space of ``input_gain * lag(s) * sum_i g_i/(s^2 + 2 z_i w_i s + w_i^2)``.
+
+    The states are the lag's output current first (if ``lag_time_constant`` > 0), then
+    (position, velocity) per mode; the output is the sum of the mode positions.
+
+    Args:
+        gains: Mode gains g_i (the rigid body is a mode with frequency 0, damping 0).
+        frequencies: Natural frequencies w_i [rad/s].
+        dampings: Damping ratios z_i.
+        lag_time_constant: First-order lag in front of the mechanics [s] (0: none).
+        input_gain: Factor between the command and the mechanics (e.g. a torque-constant ratio).
+
+    Returns:
+        ``(a, b, drive, c)``: system matrix, command input, the mechanics' input per unit of
+        torque current (for disturbance currents added after the lag), output row.
+    """
+    off = 1 if lag_time_constant > 0 else 0
+    n = off + 2 * len(gains)
     a = np.zeros((n, n))
-    b = np.zeros(n)
-    c = np.zeros(n)
-    off = n - n_mech
-    gains = [model.k0, *model.residues]
-    freqs = [0.0, *model.natural_frequencies]
-    damps = [0.0, *model.damping_ratios]
     drive = np.zeros(n)
-    for i, (k, w, z) in enumerate(zip(gains, freqs, damps, strict=True)):
+    c = np.zeros(n)
+    for i, (k, w, z) in enumerate(zip(gains, frequencies, dampings, strict=True)):
         p, v = off + 2 * i, off + 2 * i + 1
         a[p, v] = 1.0
         a[v, p] = -w * w
         a[v, v] = -2 * z * w
         drive[v] = k
         c[p] = 1.0
-    if lag > 0:
-        a[0, 0] = -1.0 / lag
-        b[0] = 1.0 / lag
-        a[:, 0] += drive
-        a[0, 0] = -1.0 / lag
+    b = np.zeros(n)
+    if off:
+        a[0, 0] = -1.0 / lag_time_constant
+        b[0] = 1.0 / lag_time_constant
+        a[1:, 0] = input_gain * drive[1:]
     else:
-        b = drive
-    return a, b, c
+        b = input_gain * drive
+    return a, b, drive, c
 
 
 def discretize(model: ModalModel, dynamics: InputDynamics,
@@ -219,7 +234,9 @@ def discretize(model: ModalModel, dynamics: InputDynamics,
     """
     if not (np.isfinite(sample_period) and sample_period > 0):
         raise ConfigurationError('sample_period must be positive and finite')
-    a_c, b_c, c_c = _continuous(model, dynamics.lag_time_constant)
+    a_c, b_c, _, c_c = modal_state_space(
+        gains=[model.k0, *model.residues], frequencies=[0.0, *model.natural_frequencies],
+        dampings=[0.0, *model.damping_ratios], lag_time_constant=dynamics.lag_time_constant)
     n = a_c.shape[0]
 
     def zoh(t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
