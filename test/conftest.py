@@ -6,8 +6,14 @@ import os
 import sys
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
+    from ros_graph import Graph
 
 REPO = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
@@ -28,3 +34,15 @@ def repo() -> Path:
 def venv_bin() -> Path:
     """The bin directory of the Python running the tests (the project venv)."""
     return VENV_BIN
+
+
+@pytest.fixture
+def graph(venv_bin: Path, tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[Graph]:
+    """A test rclpy node plus the node processes it starts; everything stopped afterwards."""
+    from ros_graph import Graph  # imports rclpy: only for the tests that talk ROS
+
+    g = Graph(venv_bin, tmp_path, name=request.module.__name__.removeprefix('test_'))
+    try:
+        yield g
+    finally:
+        g.close()

@@ -16,7 +16,6 @@ import functools
 import time
 from typing import TYPE_CHECKING
 
-import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from galvo_sysid_msgs.msg import ModalParameters
 from ros_graph import RESULTS_QOS, Graph, counters
@@ -24,8 +23,7 @@ from ros_graph import RESULTS_QOS, Graph, counters
 from galvo_sysid.plant import REFERENCE_MODEL
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
-    from pathlib import Path
+    pass
 
 OMEGA_1 = REFERENCE_MODEL.natural_frequencies[0]
 # omega_1 factor of each scanner's plant, and the drift level its watchdog must report
@@ -37,14 +35,6 @@ WINDOW = 20
 def _level_is(diags: dict[tuple[str, str], int], name: str, level: int) -> bool:
     return diags.get((name, 'plant drift')) == level
 
-
-@pytest.fixture
-def graph(venv_bin: Path, tmp_path: Path) -> Iterator[Graph]:
-    g = Graph(venv_bin, tmp_path)
-    try:
-        yield g
-    finally:
-        g.close()
 
 
 def test_four_scanners_in_namespaces_never_mix(graph: Graph) -> None:

@@ -30,8 +30,7 @@ from galvo_sysid.plant import REFERENCE_MODEL
 from galvo_sysid.simulator import GalvoSimulator
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
-    from pathlib import Path
+    pass
 
 
 REF = REFERENCE_MODEL
@@ -39,14 +38,6 @@ RESULTS_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 MOVES_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
-
-@pytest.fixture
-def graph(venv_bin: Path, tmp_path: Path) -> Iterator[Graph]:
-    g = Graph(venv_bin, tmp_path, name='integration_test')
-    try:
-        yield g
-    finally:
-        g.close()
 
 
 def rel(value: float, truth: float) -> float:

@@ -53,19 +53,10 @@ from galvo_sysid.plant import REFERENCE_MODEL
 from galvo_sysid.simulator import GalvoSimulator
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
-    from pathlib import Path
+    pass
 
 OMEGA_1 = REFERENCE_MODEL.natural_frequencies[0]
 
-
-@pytest.fixture
-def graph(venv_bin: Path, tmp_path: Path) -> Iterator[Graph]:
-    g = Graph(venv_bin, tmp_path)
-    try:
-        yield g
-    finally:
-        g.close()
 
 
 class Results:

@@ -33,7 +33,6 @@ from galvo_sysid.simulator import GalvoSimulator
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
-    from pathlib import Path
 
     from galvo_sysid.identify import IdentificationResult
     from galvo_sysid.pairing import Window
@@ -149,14 +148,6 @@ def test_largest_records_are_capped_by_buffered_samples() -> None:
 
 
 # -- the real node over DDS --------------------------------------------------------------
-
-@pytest.fixture
-def graph(venv_bin: Path, tmp_path: Path) -> Iterator[Graph]:
-    g = Graph(venv_bin, tmp_path)
-    try:
-        yield g
-    finally:
-        g.close()
 
 
 def test_sysid_node_memory_bounded_under_a_hostile_flood(graph: Graph) -> None:
