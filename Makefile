@@ -34,7 +34,7 @@ $(VENV)/.pkg-stamp: $(VENV)/.msgs-stamp setup.py setup.cfg package.xml
 	touch $@
 
 demo: setup
-	$(VPY) -m galvo_sysid.demo
+	$(VPY) -m galvo_sysid.field.demo
 
 test: setup
 	$(VPY) -m pytest -q test

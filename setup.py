@@ -27,7 +27,7 @@ setup(
             f'galvo_driver = {PACKAGE}.nodes.driver_node:main',
             f'sysid = {PACKAGE}.nodes.sysid_node:main',
             f'watchdog = {PACKAGE}.nodes.watchdog_node:main',
-            f'galvo-sysid = {PACKAGE}.cli:main',
+            f'galvo-sysid = {PACKAGE}.cli.main:main',
         ],
     },
 )

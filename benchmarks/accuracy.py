@@ -1,7 +1,7 @@
 """Accuracy benchmark: the paper's Table II, the paper pipeline and the refined fit.
 
 For several noise seeds, one bag per seed from the closed-loop simulator
-(:class:`galvo_sysid.simulator.GalvoSimulator`, the paper's schedule: for each of the 19
+(:class:`galvo_sysid.sim.simulator.GalvoSimulator`, the paper's schedule: for each of the 19
 rotation angles 0.1 psi .. 10 psi, 100 forward moves with the return moves in between; the
 forward moves of an angle are one window; ``--source openloop`` uses the open-loop test data
 instead), each window identified by
@@ -12,14 +12,14 @@ instead), each window identified by
 then prints the median and 90th-percentile |relative error| per parameter (at 1 psi and over
 all angles), the time per window (wall clock and CPU), the estimated amplifier lag, how well
 the reported std match the errors, and the pooled estimate of each seed's 19 windows, both
-:func:`galvo_sysid.identify.pool_results` (inverse-variance) and
-:func:`galvo_sysid.identify.identify_joint` (one fit to all windows), against issue 3's
+:func:`galvo_sysid.ident.identify.pool_results` (inverse-variance) and
+:func:`galvo_sysid.ident.identify.identify_joint` (one fit to all windows), against issue 3's
 targets.
 
 Last, exactly what ``galvo-sysid identify --json`` reports as ``pooled``: per seed one bag
-written by :func:`galvo_sysid.simtools.simulate_bag` (``galvo-sysid simulate --angles paper
+written by :func:`galvo_sysid.field.simulate.simulate_bag` (``galvo-sysid simulate --angles paper
 --moves-per-angle 200``: 100 moves of each signed angle, 38 windows) and identified by
-:func:`galvo_sysid.offline.identify_bag`, with its pooling (the joint fit) and, for
+:func:`galvo_sysid.field.offline.identify_bag`, with its pooling (the joint fit) and, for
 comparison, its ``pooling='inverse-variance'``; ``--bag-seeds`` (none: skip).
 
 Run from the repository root (about a minute for the default 6 seeds)::
@@ -50,13 +50,13 @@ from numpy.typing import NDArray
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from galvo_sysid.errors import GalvoSysidError
-from galvo_sysid.identify import (
+from galvo_sysid.ident.identify import (
     IdentificationResult,
     identify_joint,
     identify_window,
     pool_results,
 )
-from galvo_sysid.plant import PAPER_ANGLES, PAPER_TABLE_II, PSI, REFERENCE_MODEL, TAU
+from galvo_sysid.model.modal import PAPER_ANGLES, PAPER_TABLE_II, PSI, REFERENCE_MODEL, TAU
 
 NAMES = tuple(REFERENCE_MODEL.parameters())
 TRUTH = REFERENCE_MODEL.parameters()
@@ -76,7 +76,7 @@ Windows = dict[float, tuple[NDArray[np.float64], NDArray[np.float64]]]
 def _bag(source: str, angles: list[float], moves: int, seed: int) -> Windows:
     """One bag: ``moves`` moves of each angle (forward moves; independent noise per window)."""
     if source == 'simulator':
-        from galvo_sysid.simulator import GalvoSimulator
+        from galvo_sysid.sim.simulator import GalvoSimulator
 
         sim = GalvoSimulator(seed=seed)
         cur: dict[float, list[NDArray[np.float64]]] = {a: [] for a in angles}
@@ -174,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
             except GalvoSysidError as exc:
                 print(f'  seed {seed}: joint fit failed: {exc}')
     if args.source == 'simulator' and args.psi_windows > 0:
-        from galvo_sysid.simulator import simulate_window
+        from galvo_sysid.sim.simulator import simulate_window
 
         for seed in range(1000, 1000 + args.psi_windows):
             cur, enc = simulate_window(PSI, moves=args.moves, seed=seed)
@@ -265,8 +265,8 @@ def _bag_section(seeds: list[int], angles: list[float]) -> None:
     """Pooled errors of identify_bag (what ``galvo-sysid identify --json`` prints)."""
     import tempfile
 
-    from galvo_sysid.offline import identify_bag
-    from galvo_sysid.simtools import simulate_bag
+    from galvo_sysid.field.offline import identify_bag
+    from galvo_sysid.field.simulate import simulate_bag
 
     found: dict[str, list[IdentificationResult]] = {'joint': [], 'inverse-variance': []}
     used: list[str] = []

@@ -1,6 +1,6 @@
 """Confusion table of the discrepancy workflow (issue 6): effects x magnitudes x seeds.
 
-Each case runs the closed-loop simulator (galvo_sysid.simulator) with one hidden physical
+Each case runs the closed-loop simulator (galvo_sysid.sim.simulator) with one hidden physical
 effect, at the angles 0.1, 1 and 10 psi (moves alternating +angle/-angle), and hands only
 the recorded moves (current, encoder, target angle, move id, stamp) to
 ``find_discrepancy`` with the nominal model. The table shows how often the effect is named
@@ -32,8 +32,8 @@ from typing import Any
 for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
     os.environ.setdefault(_var, '1')
 
-from galvo_sysid.discrepancy import MoveSet, find_discrepancy  # noqa: E402
-from galvo_sysid.plant import PSI, TAU  # noqa: E402
+from galvo_sysid.discrepancy.workflow import MoveSet, find_discrepancy  # noqa: E402
+from galvo_sysid.model.modal import PSI, TAU  # noqa: E402
 
 CASES: dict[str, list[tuple[str, dict[str, float]]]] = {
     'input_delay': [('+0.3 tau', {'delay': 1.9 * TAU}), ('+1 tau', {'delay': 2.6 * TAU})],
@@ -56,8 +56,8 @@ ANGLES = (0.1 * PSI, PSI, 10 * PSI)
 def simulate(effect: str | None, params: dict[str, float], *, seed: int,
              moves_per_angle: int) -> MoveSet:
     """Moves of the simulated scanner with one effect (or none)."""
-    from galvo_sysid.effects import PlantEffects
-    from galvo_sysid.simulator import GalvoSimulator, SimulatorConfig
+    from galvo_sysid.model.effects import PlantEffects
+    from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig
 
     cfg = SimulatorConfig()
     if effect is not None:

@@ -3,7 +3,8 @@
 The target (issue 5): a bag of the paper's 19 angles x 200 moves (3,800 moves, about 23 s of
 scanner time, 38 windows of 100 moves) identified at least 10x faster than real time, with the
 process start included (and the pooled estimate: one joint fit of all windows, see
-:mod:`galvo_sysid.offline`). Each run is a fresh ``galvo-sysid identify BAG --json`` process, timed
+:mod:`galvo_sysid.field.offline`). Each run is a fresh ``galvo-sysid identify BAG --json`` process,
+timed
 by wall clock, best and median of ``--repeat`` runs (on a shared machine the best run shows
 what the code costs, the median what a busy machine gives). Also printed: how the time grows
 with the number of windows (bags of 1, 2, 5, 10 and 19 angles) and the process start alone
@@ -24,8 +25,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from galvo_sysid.plant import PAPER_ANGLES
-from galvo_sysid.simtools import simulate_bag
+from galvo_sysid.field.simulate import simulate_bag
+from galvo_sysid.model.modal import PAPER_ANGLES
 
 CLI = str(Path(sys.executable).parent / 'galvo-sysid')
 

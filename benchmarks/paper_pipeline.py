@@ -1,8 +1,8 @@
 """Benchmark of the paper's pipeline: methods A and B, solvers, delay handling, timing.
 
 For several noise seeds and the paper's rotation angles, one window of 100 moves each from the
-closed-loop simulator (:func:`galvo_sysid.simulator.simulate_window`) is identified by
-:func:`galvo_sysid.paper.paper_pipeline` in several variants:
+closed-loop simulator (:func:`galvo_sysid.sim.simulator.simulate_window`) is identified by
+:func:`galvo_sysid.ident.paper.paper_pipeline` in several variants:
 
 - ``A``, ``B``: methods A (average) and B (concatenation), normal equations, delay 1.6 T;
 - ``A-qr``, ``B-qr``: the same solved by QR;
@@ -39,10 +39,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from galvo_sysid.errors import GalvoSysidError
-from galvo_sysid.modal import arx_to_continuous, continuous_modal_decomposition
-from galvo_sysid.paper import paper_pipeline
-from galvo_sysid.plant import PAPER_ANGLES, PAPER_TABLE_II, PSI, REFERENCE_MODEL, TAU
-from galvo_sysid.simulator import simulate_window
+from galvo_sysid.ident.decompose import arx_to_continuous, continuous_modal_decomposition
+from galvo_sysid.ident.paper import paper_pipeline
+from galvo_sysid.model.modal import PAPER_ANGLES, PAPER_TABLE_II, PSI, REFERENCE_MODEL, TAU
+from galvo_sysid.sim.simulator import simulate_window
 
 VARIANTS: dict[str, dict[str, Any]] = {
     'A': {'method': 'A'},

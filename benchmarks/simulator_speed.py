@@ -14,9 +14,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from galvo_sysid.effects import Drift, PlantEffects, PlantSpec
-from galvo_sysid.plant import PAPER_ANGLES
-from galvo_sysid.simulator import GalvoSimulator, SimulatorConfig, simulate_window
+from galvo_sysid.model.effects import Drift, PlantEffects, PlantSpec
+from galvo_sysid.model.modal import PAPER_ANGLES
+from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig, simulate_window
 
 
 def _rate(run: Callable[[], int], repeat: int) -> float:

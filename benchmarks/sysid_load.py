@@ -42,8 +42,8 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from galvo_sysid.messages import fill, fill_header, move_samples_fields, stamp_to_seconds
-from galvo_sysid.simulator import GalvoSimulator
+from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields, stamp_to_seconds
+from galvo_sysid.sim.simulator import GalvoSimulator
 
 MOVE_TIME = 606e-5  # simulated seconds per move (512 recorded + 94 dwell samples at 10 us)
 NS = '/load'

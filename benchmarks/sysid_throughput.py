@@ -38,8 +38,8 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from galvo_sysid.messages import fill, fill_header, move_samples_fields
-from galvo_sysid.simulator import GalvoSimulator
+from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields
+from galvo_sysid.sim.simulator import GalvoSimulator
 
 ANGLES = (0.3, 0.9, 2.1)
 MOVE_TIME = 606e-5  # simulated seconds per move (512 + 94 samples at 10 us)

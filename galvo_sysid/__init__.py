@@ -3,7 +3,7 @@
 Numerics live in plain modules that never import rclpy (``plant``, ``delay``, ``arx``,
 ``modal``, ``paper``, ``refine``, ``identify``, ``simulator``, ``pairing``, ``drift``, ...);
 the ROS 2 nodes live in :mod:`galvo_sysid.nodes`; the command-line tool in
-:mod:`galvo_sysid.cli`.
+:mod:`galvo_sysid.cli.main`.
 """
 
 import os

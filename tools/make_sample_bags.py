@@ -21,8 +21,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from galvo_sysid.bagio import BagReader
-from galvo_sysid.simtools import simulate_bag
+from galvo_sysid.field.bags import BagReader
+from galvo_sysid.field.simulate import simulate_bag
 
 BAGS = Path(__file__).resolve().parents[1] / 'bags'
 

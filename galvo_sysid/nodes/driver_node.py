@@ -1,6 +1,6 @@
 """``galvo_driver``: a simulated galvano scanner doing positioning moves, published live.
 
-Wraps :class:`galvo_sysid.simulator.GalvoSimulator` (closed loop, Table I plant, input
+Wraps :class:`galvo_sysid.sim.simulator.GalvoSimulator` (closed loop, Table I plant, input
 dynamics, noise, quantised encoder). Moves follow the paper's schedule: for each angle of
 ``angles``, ``moves_per_angle`` moves alternating forward (+a) and return (-a). Each move is
 published on ``galvo/current`` and ``galvo/encoder`` (``MoveSamples``, same move_id, stamp =
@@ -28,10 +28,11 @@ from galvo_sysid_msgs.msg import MoveSamples
 from rclpy.duration import Duration
 from rclpy.node import Node
 
-from galvo_sysid.effects import Drift, PlantEffects, PlantSpec, StepChange
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError
-from galvo_sysid.messages import fill, fill_header, move_samples_fields
-from galvo_sysid.nodes._common import (
+from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields
+from galvo_sysid.model.effects import Drift, PlantEffects, PlantSpec, StepChange
+from galvo_sysid.model.modal import PAPER_ANGLES
+from galvo_sysid.nodes.framework import (
     CURRENT_TOPIC,
     ENCODER_TOPIC,
     RELIABILITY,
@@ -41,13 +42,12 @@ from galvo_sysid.nodes._common import (
     moves_qos,
     run_node,
 )
-from galvo_sysid.plant import PAPER_ANGLES
-from galvo_sysid.simulator import GalvoSimulator
+from galvo_sysid.sim.simulator import GalvoSimulator
 
 if TYPE_CHECKING:
     from collections.abc import Iterator, Sequence
 
-    from galvo_sysid.simulator import Move
+    from galvo_sysid.sim.simulator import Move
 
 __all__ = ['PARAMETERS', 'DriverNode', 'PlantChanges', 'main']
 
@@ -79,7 +79,7 @@ PARAMETERS = (
     ParamSpec('step.factor', 1.0, 'the step multiplies the parameter by this', 0.01, 100.0),
     ParamSpec('step.at_move', -1, 'move index of the step (-1: the next move)', -1, 2**62),
     ParamSpec('effects', '[]', 'physical effects as JSON: [{"effect": name, "parameters": '
-              '{...}}, ...] (see galvo_sysid.effects)'),
+              '{...}}, ...] (see galvo_sysid.model.effects)'),
 )
 
 

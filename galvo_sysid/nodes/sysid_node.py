@@ -3,7 +3,7 @@
 Subscribes to ``galvo/current`` and ``galvo/encoder`` (``MoveSamples``), pairs the halves by
 move_id, collects ``window_size`` moves per signed target angle and publishes each window's
 identified ``ModalParameters`` on ``galvo/modal_parameters`` (reliable, transient local).
-The logic is :class:`galvo_sysid.online.SysidTask`; fits run on a worker thread (by default
+The logic is :class:`galvo_sysid.monitor.online.SysidTask`; fits run on a worker thread (by default
 in a child process), never in the subscription callbacks.
 
 Run: ``sysid --ros-args --params-file config/sysid.yaml [-r __ns:=/scanner_1]``.
@@ -20,8 +20,15 @@ from galvo_sysid_msgs.msg import ModalParameters, MoveSamples
 from rclpy.node import Node
 
 from galvo_sysid.errors import GalvoSysidError
-from galvo_sysid.messages import fill, fill_header, modal_parameters_fields, move_half_from_msg
-from galvo_sysid.nodes._common import (
+from galvo_sysid.interfaces.messages import (
+    fill,
+    fill_header,
+    modal_parameters_fields,
+    move_half_from_msg,
+)
+from galvo_sysid.monitor.online import FitOutcome, SysidTask, fit_window
+from galvo_sysid.monitor.pairing import WINDOWER_PARAMETERS
+from galvo_sysid.nodes.framework import (
     CURRENT_TOPIC,
     DIAGNOSTICS_TOPIC,
     ENCODER_TOPIC,
@@ -36,8 +43,6 @@ from galvo_sysid.nodes._common import (
     run_node,
     scanner_name,
 )
-from galvo_sysid.online import FitOutcome, SysidTask, fit_window
-from galvo_sysid.pairing import WINDOWER_PARAMETERS
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -135,7 +140,7 @@ class SysidNode(Node):
 
     def _apply(self, values: dict[str, Any], changed: set[str]) -> None:
         if changed & set(WINDOWER_PARAMETERS):
-            from galvo_sysid.pairing import MoveWindower
+            from galvo_sysid.monitor.pairing import MoveWindower
 
             old = self.task.windower
             self.task.windower = MoveWindower(**self._windower_args(values),

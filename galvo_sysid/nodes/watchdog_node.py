@@ -1,7 +1,7 @@
 """``watchdog``: is the identified plant drifting from its reference model?
 
 Subscribes to ``galvo/modal_parameters`` and judges each window with
-:class:`galvo_sysid.drift.DriftMonitor` (reference model and tolerances from parameters;
+:class:`galvo_sysid.monitor.drift.DriftMonitor` (reference model and tolerances from parameters;
 default Table I): publishes a ``DriftStatus`` per window on ``galvo/drift`` and, at
 ``publish_rate``, a ``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` (hardware_id =
 the scanner's name, one key/value per parameter's deviation). With no result for
@@ -20,7 +20,17 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from galvo_sysid_msgs.msg import DriftStatus, ModalParameters
 from rclpy.node import Node
 
-from galvo_sysid.drift import (
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError
+from galvo_sysid.interfaces.messages import (
+    diagnostic_values,
+    drift_status_fields,
+    fill,
+    fill_header,
+    result_from_msg,
+    stamp_to_seconds,
+)
+from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.monitor.drift import (
     DEFAULT_TOLERANCES,
     ERROR,
     OK,
@@ -31,16 +41,8 @@ from galvo_sysid.drift import (
     parameter_names,
     reference_from_parameters,
 )
-from galvo_sysid.errors import ConfigurationError, GalvoSysidError
-from galvo_sysid.messages import (
-    diagnostic_values,
-    drift_status_fields,
-    fill,
-    fill_header,
-    result_from_msg,
-    stamp_to_seconds,
-)
-from galvo_sysid.nodes._common import (
+from galvo_sysid.monitor.online import WatchdogTask
+from galvo_sysid.nodes.framework import (
     DIAGNOSTICS_TOPIC,
     DRIFT_TOPIC,
     RESULT_TOPIC,
@@ -52,8 +54,6 @@ from galvo_sysid.nodes._common import (
     run_node,
     scanner_name,
 )
-from galvo_sysid.online import WatchdogTask
-from galvo_sysid.plant import REFERENCE_MODEL
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

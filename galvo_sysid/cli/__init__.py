@@ -1,0 +1,4 @@
+"""The ``galvo-sysid`` command-line tool.
+
+One module per subcommand group; ``main`` builds the parser.
+"""

@@ -1,0 +1,192 @@
+"""``galvo-sysid discrepancy``: compare a plant model with the moves of a bag.
+
+The subcommand's parser and run function; :mod:`galvo_sysid.cli.main` picks it up through its
+``PLUGINS`` list (:func:`register`). Also runnable alone::
+
+    python -m galvo_sysid.cli.discrepancy BAG [--model MODEL.yaml] [--json] [--report DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+__all__ = ['add_parser', 'main', 'register', 'run']
+
+_DESCRIPTION = """\
+Compare a plant model with the moves recorded in a bag, find where they disagree, name the
+missing physical effect, add it and show the gap shrink.
+
+The comparison does not depend on the controller: the model is driven by each move's
+measured current, from rest at the move's start angle, and its angle is compared with the
+measured encoder. The gap is the RMS of the mean residual that the model leaves unexplained,
+over all frequencies and target angles, in units of the noise floor that the move-to-move
+scatter gives (0: the model explains the moves within the noise).
+
+Candidate effects, each fitted to the data and scored by the drop of the Bayesian
+information criterion (the best one above --threshold is added, then the search repeats):
+  input_delay          delay [s], the total equivalent input delay
+  unmodeled_resonance  natural_frequency [rad/s], damping_ratio, residue [deg/(A s^2)]
+  coulomb_friction     friction_current [A]
+  pivot_stiffness      natural_frequency [rad/s]
+  gain_change          gain_ratio
+  current_saturation   current_limit [A]
+  none                 the model explains the data within the noise"""
+
+_EPILOG = """\
+output:
+  a summary (gap, where, candidates, effects found); --json prints one object
+  {"effect", "parameters", "gap_before", "gap_after", "candidates": [{"effect", "score",
+  ...}], "steps": [...], "where", "where_after", "moves", "angles", "threshold", "model"}.
+  --report DIR writes spectra.png, moves.png, candidates.png, where.png, summary.txt,
+  result.json and model.yaml (the augmented model, loadable by --model).
+
+examples:
+  galvo-sysid simulate --out /tmp/fric --angles 0.1psi 1psi 10psi --moves-per-angle 40 \\
+      --effect coulomb_friction:friction_current=0.02
+  galvo-sysid discrepancy /tmp/fric
+  galvo-sysid discrepancy /tmp/fric --json | jq .effect
+  galvo-sysid discrepancy /tmp/fric --report /tmp/fric_report --save-model fric.yaml
+  galvo-sysid discrepancy /tmp/other --model fric.yaml
+
+exit codes: 0 ok (whatever was found), 1 bad input, 2 usage error"""
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+    """Keep the hand-made line breaks and show defaults."""
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'not an integer: {text!r}') from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be >= 1: {text!r}')
+    return value
+
+
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'not a number: {text!r}') from None
+    if value != value or value in (float('inf'), float('-inf')):
+        raise argparse.ArgumentTypeError(f'must be finite: {text!r}')
+    return value
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add the ``discrepancy`` subcommand to an argparse subparsers object."""
+    from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD
+    from galvo_sysid.model.io import EFFECT_NAMES
+
+    p: argparse.ArgumentParser = subparsers.add_parser(
+        'discrepancy', formatter_class=_Formatter, description=_DESCRIPTION, epilog=_EPILOG,
+        help='where a plant model and a bag disagree, and which effect is missing')
+    _arguments(p, DEFAULT_THRESHOLD, EFFECT_NAMES)
+    return p
+
+
+def _arguments(p: argparse.ArgumentParser, threshold: float,
+               effect_names: Sequence[str]) -> None:
+    p.add_argument('bag', help='rosbag2 bag: directory, .mcap or .db3 file')
+    p.add_argument('--model', metavar='MODEL.yaml',
+                   help='plant model to compare with (default: the nominal model: Table I, '
+                        'one sample of DSP delay, amplifier lag 0.6 tau)')
+    p.add_argument('--json', action='store_true', help='print one JSON object on stdout')
+    p.add_argument('--report', metavar='DIR', help='write figures and files into DIR')
+    p.add_argument('--save-model', metavar='FILE',
+                   help='write the augmented model (YAML) to FILE')
+    p.add_argument('--threshold', type=_finite, default=threshold, metavar='S',
+                   help='score (BIC drop) a candidate needs to be accepted')
+    p.add_argument('--max-effects', type=_positive_int, default=3, metavar='N',
+                   help='most effects added in turn')
+    p.add_argument('--effects', nargs='+', choices=list(effect_names), metavar='NAME',
+                   default=list(effect_names), help='candidate effects to try')
+    p.add_argument('--max-moves-per-angle', type=_positive_int, default=None, metavar='N',
+                   help='use at most N moves of each signed target angle (the first; '
+                        'default: all)')
+    p.add_argument('--namespace', metavar='NS',
+                   help='scanner namespace when the bag holds several (e.g. /left)')
+
+
+def register(subparsers: Any) -> None:
+    """Add the subcommand and set :func:`run` as its function (``galvo_sysid.cli.main`` plugin)."""
+    add_parser(subparsers).set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the subcommand; return the exit code.
+
+    Raises:
+        GalvoSysidError: Bad bag, model or data (the caller prints one line).
+    """
+    from galvo_sysid.discrepancy.report import format_result, json_safe, write_report
+    from galvo_sysid.discrepancy.workflow import find_discrepancy, read_moves
+    from galvo_sysid.model.io import NOMINAL_MODEL, load_model, save_model
+
+    model = load_model(args.model) if args.model else NOMINAL_MODEL
+    moves, rejected = read_moves(args.bag, namespace=args.namespace,
+                                 max_moves_per_angle=args.max_moves_per_angle)
+    verbose = not args.json and sys.stderr.isatty()
+
+    def progress(text: str) -> None:
+        if verbose:
+            sys.stderr.write(f'\r\033[Kdiscrepancy: {text}')
+            sys.stderr.flush()
+
+    try:
+        result = find_discrepancy(moves, model, threshold=args.threshold,
+                                  max_effects=args.max_effects, effects=args.effects,
+                                  progress=progress)
+    finally:
+        if verbose:
+            sys.stderr.write('\r\033[K')
+    if args.json:
+        out = json_safe(result.to_dict())
+        out['rejected'] = rejected
+        json.dump(out, sys.stdout, allow_nan=False)
+        sys.stdout.write('\n')
+    else:
+        sys.stdout.write(format_result(result, source=str(args.bag)))
+        if rejected:
+            sys.stdout.write(f'set aside: {len(rejected)} move(s)/message(s) '
+                             f'(see --json)\n')
+    if args.save_model:
+        path = save_model(result.final_model, args.save_model)
+        print(f'discrepancy: augmented model written to {path}', file=sys.stderr)
+    if args.report:
+        files = write_report(result, args.report, source=str(args.bag))
+        print(f'discrepancy: report written to {args.report} ({len(files)} files)',
+              file=sys.stderr)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``discrepancy`` alone (``python -m galvo_sysid.cli.discrepancy``)."""
+    from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD
+    from galvo_sysid.errors import GalvoSysidError
+    from galvo_sysid.model.io import EFFECT_NAMES
+
+    parser = argparse.ArgumentParser(prog='galvo-sysid discrepancy', description=_DESCRIPTION,
+                                     epilog=_EPILOG, formatter_class=_Formatter)
+    _arguments(parser, DEFAULT_THRESHOLD, EFFECT_NAMES)
+    args = parser.parse_args(argv)
+    try:
+        return run(args)
+    except (GalvoSysidError, OSError) as err:
+        print(f'galvo-sysid discrepancy: error: {" ".join(str(err).split())}', file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print('galvo-sysid discrepancy: interrupted', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':  # pragma: no cover
+    sys.exit(main())

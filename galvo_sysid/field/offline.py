@@ -1,0 +1,388 @@
+"""Offline identification of a bag: what ``galvo-sysid identify`` runs (no ROS graph).
+
+The moves of the bag go through exactly the objects the live nodes use, in the same order:
+each ``MoveSamples`` message becomes a :class:`~galvo_sysid.monitor.pairing.MoveHalf`
+(:mod:`galvo_sysid.interfaces.messages`), :class:`~galvo_sysid.monitor.pairing.MoveWindower` pairs
+them and cuts
+windows of ``window_size`` moves per signed target angle,
+:func:`~galvo_sysid.ident.identify.identify_window` fits each window and
+:class:`~galvo_sysid.monitor.drift.DriftMonitor` judges it. At the end of the bag, every unfinished
+window holding at least ``min_partial`` moves (default: half a window) is identified too and
+marked partial. Moves that cannot be used are listed with the reason; the rest is used.
+
+The pooled estimate (the bag's plant, from all windows; the nodes have no such thing) is, for
+the refined method, :func:`~galvo_sysid.ident.identify.identify_joint`: one fit of the modal model
+to the identified windows at once, started from
+:func:`~galvo_sysid.ident.identify.pool_results` (the inverse-variance combination of the windows'
+results), several times sharper on the weakly excited third mode. If the joint fit fails,
+the inverse-variance combination is reported instead, with the reason. For the paper
+methods the pooled estimate is the inverse-variance combination.
+"""
+
+from __future__ import annotations
+
+import collections
+import concurrent.futures
+import contextlib
+import functools
+import math
+import multiprocessing
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError
+from galvo_sysid.field.bags import BagInfo, BagReader, SetAside
+from galvo_sysid.monitor.drift import monitor_from_parameters
+from galvo_sysid.monitor.pairing import WINDOWER_PARAMETERS
+
+if TYPE_CHECKING:
+    import os
+    from collections.abc import Callable
+    from concurrent.futures import Future
+
+    from galvo_sysid.ident.identify import IdentificationResult
+    from galvo_sysid.monitor.drift import DriftMonitor, DriftVerdict
+    from galvo_sysid.monitor.pairing import Rejection, Window
+
+__all__ = [
+    'JOINT_WINDOWS',
+    'METHODS',
+    'POOLINGS',
+    'WINDOWER_PARAMETERS',
+    'BagIdentification',
+    'WindowResult',
+    'identify_bag',
+    'load_node_parameters',
+    'monitor_from_parameters',
+    'rejection_to_dict',
+]
+
+METHODS = ('refined', 'paper-A', 'paper-B')
+"""Identification methods ``galvo-sysid identify --method`` accepts."""
+
+POOLINGS = ('joint', 'inverse-variance')
+"""Pooled estimates: one joint fit to the windows (refined method only), or the
+inverse-variance combination of the windows' results."""
+
+JOINT_WINDOWS = 64
+"""Windows held for the joint fit at most (about 0.8 MB each for 100 moves of 512 samples)."""
+
+
+def _flatten(tree: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, Mapping):
+            out.update(_flatten(value, f'{name}.'))
+        else:
+            out[name] = value
+    return out
+
+
+def load_node_parameters(path: str | os.PathLike[str], node: str) -> dict[str, Any]:
+    """Read a ROS 2 parameter file (``--params-file``) for ``node``; nested names joined by '.'.
+
+    Sections apply as ROS applies them: ``/**`` first, then sections naming the node (with or
+    without namespace, e.g. ``sysid`` or ``/scanner_1/sysid``), later ones winning.
+
+    Raises:
+        ConfigurationError: Unreadable file or no section for the node.
+    """
+    import re
+
+    import yaml  # type: ignore[import-untyped]  # PyYAML ships no stubs here
+
+    class Loader(yaml.SafeLoader):  # type: ignore[misc]
+        """YAML 1.1 reads 3.564e6 as a string; ROS's parameter parser reads a number."""
+
+    Loader.add_implicit_resolver(
+        'tag:yaml.org,2002:float',
+        re.compile(r'^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+$'),
+        list('-+0123456789.'))
+    try:
+        with Path(path).open(encoding='utf-8') as f:
+            doc = yaml.load(f, Loader=Loader)  # a SafeLoader subclass: safe
+    except (OSError, yaml.YAMLError) as err:
+        msg = f'cannot read parameter file {path}: {_one_line(err)}'
+        raise ConfigurationError(msg) from None
+    if not isinstance(doc, Mapping):
+        msg = f'parameter file {path} is not a mapping of node names'
+        raise ConfigurationError(msg)
+    wildcard = [v for k, v in doc.items() if str(k) in {'/**', '**'}]
+    named = [v for k, v in doc.items() if str(k).rstrip('/').split('/')[-1] == node]
+    values: dict[str, Any] = {}
+    for section in (*wildcard, *named):
+        params = section.get('ros__parameters') if isinstance(section, Mapping) else None
+        if isinstance(params, Mapping):
+            values.update(_flatten(params))
+    if not wildcard and not named:
+        msg = f'parameter file {path} has no section for node {node!r} (nor /**)'
+        raise ConfigurationError(msg)
+    return values
+
+
+def _clean(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def rejection_to_dict(rejection: Rejection | SetAside) -> dict[str, Any]:
+    """JSON-ready form of a set-aside move: ``move_id``, ``target_angle``, ``stamp``, ``reason``."""
+    if isinstance(rejection, SetAside):
+        return rejection.to_dict()
+    return {'move_id': int(rejection.move_id), 'target_angle': _clean(rejection.target_angle),
+            'stamp': _clean(rejection.stamp), 'reason': rejection.reason}
+
+
+@dataclass(frozen=True)
+class WindowResult:
+    """One identified window.
+
+    Attributes:
+        window_index: The windower's running number of the window.
+        target_angle: Signed target angle [deg].
+        partial: Identified from an unfinished window at the end of the bag.
+        first_stamp: Stamp of the window's earliest move [s].
+        last_stamp: Stamp of its latest move [s].
+        result: The identification.
+        drift: The drift monitor's verdict.
+    """
+
+    window_index: int
+    target_angle: float
+    partial: bool
+    first_stamp: float
+    last_stamp: float
+    result: IdentificationResult
+    drift: DriftVerdict
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: ``window_index``, the result's fields, ``partial``, stamps, ``drift``."""
+        out: dict[str, Any] = {'window_index': self.window_index}
+        out.update(self.result.to_dict())
+        out['partial'] = self.partial
+        out['first_stamp'] = self.first_stamp
+        out['last_stamp'] = self.last_stamp
+        out['drift'] = self.drift.to_dict()
+        return out
+
+
+@dataclass(frozen=True)
+class BagIdentification:
+    """Everything ``galvo-sysid identify`` found in a bag.
+
+    Attributes:
+        info: The bag's topics and time range.
+        method: The identification method used.
+        window_size: Moves per complete window.
+        windows: Identified windows, in the order they were completed.
+        pooled: Pooled estimate over all windows (None without windows).
+        rejected: Set-aside moves and messages, JSON-ready (see :func:`rejection_to_dict`).
+        moves: Move halves read from the bag (current and encoder messages) / 2.
+        pooling: How ``pooled`` was made: ``'joint'`` or ``'inverse-variance'`` (see
+            :data:`POOLINGS`; ``''`` without windows).
+        pooled_windows: Windows that went into ``pooled``.
+        pooling_note: Why the pooling is not the one asked for (e.g. the joint fit failed),
+            else None.
+    """
+
+    info: BagInfo
+    method: str
+    window_size: int
+    windows: tuple[WindowResult, ...]
+    pooled: IdentificationResult | None
+    rejected: tuple[dict[str, Any], ...]
+    moves: float
+    pooling: str = ''
+    pooled_windows: int = 0
+    pooling_note: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``--json`` object: ``{"windows": [...], "pooled": {...}, "rejected": [...]}``.
+
+        ``pooled`` holds the result's fields plus ``pooling``, ``pooled_windows`` and
+        ``pooling_note``.
+        """
+        pooled = None
+        if self.pooled is not None:
+            pooled = self.pooled.to_dict()
+            pooled.update(pooling=self.pooling, pooled_windows=self.pooled_windows,
+                          pooling_note=self.pooling_note)
+        return {
+            'windows': [w.to_dict() for w in self.windows],
+            'pooled': pooled,
+            'rejected': list(self.rejected),
+        }
+
+
+def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
+                 window_size: int = 100, min_partial: int | None = None,
+                 namespace: str | None = None, monitor: DriftMonitor | None = None,
+                 na: int = 15, nb: int = 15, windower: Mapping[str, Any] | None = None,
+                 jobs: int = 1, pooling: str | None = None,
+                 joint_windows: int = JOINT_WINDOWS,
+                 progress: Callable[[int, int], None] | None = None) -> BagIdentification:
+    """Identify every window of moves in a bag (see the module docs for the path taken).
+
+    Args:
+        bag: The bag (directory, ``.mcap`` or ``.db3``).
+        method: ``'refined'`` (default), ``'paper-A'`` or ``'paper-B'``.
+        window_size: Moves per window (the sysid node's default is 100).
+        min_partial: Smallest unfinished window identified at the end; default half a window.
+        namespace: Scanner namespace when the bag holds several.
+        monitor: Drift monitor (default: reference = Table I, default tolerances).
+        na: ARX order of A[q] (paper pipeline, also the refined fit's start), as the sysid
+            node's parameter ``na``.
+        nb: ARX order of B[q], as the sysid node's ``nb``.
+        windower: Further :class:`~galvo_sysid.monitor.pairing.MoveWindower` settings, as the
+            sysid node's parameters of :data:`WINDOWER_PARAMETERS` (``window_size`` here is
+            overridden by the argument).
+        jobs: Windows fitted in parallel by this many forked processes (1: in this process).
+            The results do not depend on it: each window's fit is the same function call,
+            and the drift monitor still sees the windows in order.
+        pooling: ``'joint'`` (default for ``'refined'``) or ``'inverse-variance'`` (default,
+            and the only choice, for the paper methods); see the module docs.
+        joint_windows: Windows held for the joint fit at most (memory): beyond, the oldest
+            window of the target angle holding the most is let go, so every angle stays in.
+        progress: Called as ``progress(messages_done, messages_total)`` while reading.
+
+    Raises:
+        BagError: Missing, corrupt or truncated bag, no galvo topics, wrong topic type.
+        ConfigurationError: Unknown method or bad window settings.
+    """
+    from galvo_sysid.monitor.drift import DriftMonitor
+    from galvo_sysid.monitor.online import fit_window
+    from galvo_sysid.monitor.pairing import MoveWindower
+
+    if method not in METHODS:
+        msg = f'unknown method {method!r}; choose one of {", ".join(METHODS)}'
+        raise ConfigurationError(msg)
+    min_moves = window_size // 2 if min_partial is None else int(min_partial)
+    if min_moves < 2:  # an average needs two moves
+        msg = f'min_partial must be >= 2, got {min_moves}'
+        raise ConfigurationError(msg)
+    if int(jobs) < 1:
+        msg = f'jobs must be >= 1, got {jobs}'
+        raise ConfigurationError(msg)
+    pooling = ('joint' if method == 'refined' else 'inverse-variance') if pooling is None \
+        else pooling
+    if pooling not in POOLINGS or (pooling == 'joint' and method != 'refined'):
+        msg = (f'pooling {pooling!r} is not possible with method {method!r}; choose '
+               f'{"one of " + ", ".join(POOLINGS) if method == "refined" else "inverse-variance"}')
+        raise ConfigurationError(msg)
+    if int(joint_windows) < 1:
+        msg = f'joint_windows must be >= 1, got {joint_windows}'
+        raise ConfigurationError(msg)
+    kept: list[Window] = []  # the joint fit's windows
+    settings = {k: v for k, v in dict(windower or {}).items() if k in WINDOWER_PARAMETERS}
+    settings['window_size'] = window_size
+    pairer = MoveWindower(**settings)
+    judge = DriftMonitor() if monitor is None else monitor
+    rejected: list[dict[str, Any]] = []
+    # exactly the sysid node's fit function (nodes/sysid_node.py: SysidNode._fit_function)
+    fit = functools.partial(fit_window, method=method, options={'na': int(na), 'nb': int(nb)})
+    pending: collections.deque[tuple[Window, Future[IdentificationResult] | None]] = \
+        collections.deque()
+    windows: list[WindowResult] = []
+
+    def drain(limit: int) -> None:
+        """Finish the oldest windows, in order, until at most ``limit`` are in flight."""
+        while len(pending) > limit:
+            window, future = pending.popleft()
+            try:
+                result = fit(window) if future is None else future.result()
+            except Exception as err:  # like the sysid node: a failed fit loses its window only
+                text = _one_line(err) if isinstance(err, GalvoSysidError) else \
+                    f'unexpected {type(err).__name__}: {_one_line(err)}'
+                reason = f'window {window.index} not identified: {text}'
+                rejected.extend({'move_id': mid, 'target_angle': window.target_angle,
+                                 'stamp': None, 'reason': reason} for mid in window.move_ids)
+                continue
+            verdict = judge.assess(result, window_index=window.index)
+            windows.append(WindowResult(window.index, window.target_angle, window.partial,
+                                        window.first_stamp, window.last_stamp, result, verdict))
+            if pooling == 'joint':
+                _keep(kept, window, limit=int(joint_windows))
+
+    with contextlib.ExitStack() as stack:
+        pool = None
+        if int(jobs) > 1:
+            # fork: the children inherit the imported numerics (no ROS in this process)
+            pool = stack.enter_context(concurrent.futures.ProcessPoolExecutor(
+                max_workers=int(jobs), mp_context=multiprocessing.get_context('fork')))
+        in_flight = 2 * int(jobs) if pool is not None else 0
+
+        def submit(window: Window) -> None:
+            pending.append((window, None if pool is None else pool.submit(fit, window)))
+            drain(in_flight)
+
+        with BagReader(bag) as reader:
+            current, encoder = reader.galvo_topics(namespace=namespace)
+            info = reader.info
+            total = sum(t.count for t in info.topics if t.topic in {current, encoder})
+            for done, item in enumerate(reader.move_halves(namespace=namespace), start=1):
+                if isinstance(item, SetAside):
+                    rejected.append(item.to_dict())
+                else:
+                    for window in pairer.add(item):
+                        submit(window)
+                rejected.extend(rejection_to_dict(r) for r in pairer.pop_rejections())
+                if progress is not None:
+                    progress(done, total)
+        for window in pairer.flush(min_moves=min_moves):
+            submit(window)
+        rejected.extend(rejection_to_dict(r) for r in pairer.pop_rejections())
+        drain(0)
+    pooled, used, note = _pooled([w.result for w in windows], kept, pooling=pooling)
+    return BagIdentification(info=info, method=method, window_size=window_size,
+                             windows=tuple(windows), pooled=pooled, rejected=tuple(rejected),
+                             moves=total / 2, pooling=used if windows else '',
+                             pooled_windows=len(kept) if used == 'joint' else len(windows),
+                             pooling_note=note)
+
+
+def _keep(kept: list[Window], window: Window, *, limit: int) -> None:
+    """Hold ``window`` for the joint fit, at most ``limit`` windows in all.
+
+    Beyond the limit, the oldest window of the signed target angle holding the most windows
+    goes, so the held windows stay spread over the angles (each excites the modes its own
+    way).
+    """
+    if window.moves < 3:  # the joint fit needs 3 moves per window
+        return
+    kept.append(window)
+    if len(kept) > limit:
+        counts = collections.Counter(w.target_angle for w in kept)
+        most = max(counts.values())
+        drop = next(i for i, w in enumerate(kept) if counts[w.target_angle] == most)
+        del kept[drop]
+
+
+def _pooled(results: list[IdentificationResult], kept: list[Window], *,
+            pooling: str) -> tuple[IdentificationResult | None, str, str | None]:
+    """(pooled estimate, pooling used, note) of the identified windows."""
+    from galvo_sysid.ident.identify import identify_joint, pool_results
+
+    # the combination of the windows is a good start: the joint fit starts from it as it is
+    if not results:
+        return None, '', None
+    combined = pool_results(results)
+    if pooling != 'joint':
+        return combined, 'inverse-variance', None
+    periods = {w.sample_period for w in kept}
+    if len(periods) != 1:
+        reason = 'windows of different sample periods' if periods else \
+            'no window of 3 moves or more'
+        return combined, 'inverse-variance', f'joint fit not made ({reason})'
+    try:
+        joint = identify_joint([(w.current, w.encoder) for w in kept],
+                               sample_period=periods.pop(), initial=combined,
+                               target_angle=combined.target_angle, keep_initial_damping=True)
+    except GalvoSysidError as err:
+        return combined, 'inverse-variance', f'joint fit failed: {_one_line(err)}'
+    return joint, 'joint', None
+
+
+def _one_line(err: BaseException) -> str:
+    return ' '.join(str(err).split()) or type(err).__name__

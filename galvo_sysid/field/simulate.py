@@ -1,0 +1,225 @@
+"""Bags straight from the simulator (``galvo-sysid simulate``), no ROS graph involved.
+
+:func:`simulate_bag` runs :class:`~galvo_sysid.sim.simulator.GalvoSimulator` over a schedule of
+moves and writes what the galvo_driver node would publish: per move one ``MoveSamples`` on
+``/galvo/current`` and one on ``/galvo/encoder`` with the same ``move_id``, header stamp = the
+simulated time of the move's first sample; the bag's log time is that stamp too.
+
+Plant changes and effects are given as short texts (the command line's syntax):
+
+- drift ``PARAM=RATE/UNIT[@START]``: relative change per second (``/s``) or per move
+  (``/move``), from ``START`` on (same unit; default 0). ``omega_1=-2e-5/move``: omega_1
+  falls 0.002 % per move, 0.2 % per 100 moves.
+- step ``PARAM=FACTOR@WHEN``: the parameter is multiplied by ``FACTOR`` from move ``WHEN`` on
+  (``@1.5s``: from 1.5 s of simulated time). ``k0=0.9@400``.
+- effect ``NAME:KEY=VALUE[,KEY=VALUE...]``: a physical effect of
+  :data:`~galvo_sysid.model.effects.EFFECT_NAMES`, e.g. ``coulomb_friction:friction_current=0.05``,
+  ``unmodeled_resonance:natural_frequency=3e4,damping_ratio=0.01,residue=1e5``.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.field.bags import (
+    CURRENT_TOPIC,
+    ENCODER_TOPIC,
+    MOVE_SAMPLES,
+    BagWriter,
+    stamp_to_ns,
+)
+
+if TYPE_CHECKING:
+    import os
+    from collections.abc import Iterable, Sequence
+
+    from galvo_sysid.model.effects import Drift, StepChange
+    from galvo_sysid.sim.simulator import Move, SimulatorConfig
+
+__all__ = [
+    'SimulationSummary',
+    'parse_drift',
+    'parse_effect',
+    'parse_step',
+    'simulate_bag',
+    'write_moves',
+]
+
+_NUMBER = r'[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?'
+_DRIFT = re.compile(rf'^\s*(\w+)\s*=\s*({_NUMBER})\s*/\s*(s|second|move)\s*'
+                    rf'(?:@\s*({_NUMBER})\s*(s|move)?)?\s*$')
+_STEP = re.compile(rf'^\s*(\w+)\s*=\s*({_NUMBER})\s*@\s*({_NUMBER})\s*(s|move)?\s*$')
+
+
+def parse_drift(text: str) -> Drift:
+    """``PARAM=RATE/UNIT[@START]`` -> :class:`~galvo_sysid.model.effects.Drift` (relative rate).
+
+    Raises:
+        ConfigurationError: Bad syntax or unknown parameter.
+    """
+    from galvo_sysid.model.effects import Drift
+
+    m = _DRIFT.match(text)
+    if not m:
+        msg = (f'bad drift {text!r}: expected PARAM=RATE/UNIT[@START], e.g. '
+               f'omega_1=-2e-5/move or k0=-0.001/s@2')
+        raise ConfigurationError(msg)
+    name, rate, unit, start, start_unit = m.groups()
+    unit = 'second' if unit in {'s', 'second'} else 'move'
+    if start_unit and {'s': 'second'}.get(start_unit, start_unit) != unit:
+        msg = f'bad drift {text!r}: START must be in the unit of the rate ({unit})'
+        raise ConfigurationError(msg)
+    return Drift(parameter=name, rate=float(rate), unit=unit,
+                 start=float(start) if start else 0.0, relative=True)
+
+
+def parse_step(text: str) -> StepChange:
+    """``PARAM=FACTOR@WHEN[s]`` -> :class:`~galvo_sysid.model.effects.StepChange` (a factor).
+
+    Raises:
+        ConfigurationError: Bad syntax or unknown parameter.
+    """
+    from galvo_sysid.model.effects import StepChange
+
+    m = _STEP.match(text)
+    if not m:
+        msg = f'bad step {text!r}: expected PARAM=FACTOR@MOVE or PARAM=FACTOR@SECONDSs, ' \
+              f'e.g. k0=0.9@400'
+        raise ConfigurationError(msg)
+    name, factor, at, unit = m.groups()
+    return StepChange(parameter=name, value=float(factor), at=float(at),
+                      unit='second' if unit == 's' else 'move', relative=True)
+
+
+def parse_effect(text: str) -> tuple[str, dict[str, float]]:
+    """``NAME:KEY=VALUE,...`` -> ``(name, parameters)``.
+
+    Raises:
+        ConfigurationError: Bad syntax.
+    """
+    name, _, rest = text.partition(':')
+    params: dict[str, float] = {}
+    for item in filter(None, (p.strip() for p in rest.split(','))):
+        key, sep, value = item.partition('=')
+        try:
+            if not sep:
+                raise ValueError(item)
+            params[key.strip()] = float(value)
+        except ValueError:
+            msg = f'bad effect {text!r}: expected NAME:KEY=VALUE[,KEY=VALUE...]'
+            raise ConfigurationError(msg) from None
+    if not name.strip():
+        msg = f'bad effect {text!r}: no effect name'
+        raise ConfigurationError(msg)
+    return name.strip(), params
+
+
+@dataclass(frozen=True)
+class SimulationSummary:
+    """What :func:`simulate_bag` wrote.
+
+    Attributes:
+        path: The bag.
+        moves: Moves written.
+        angles: The schedule's angles [deg].
+        scanner_time: Simulated time covered [s].
+        seconds: Wall-clock time taken [s].
+        size: Bytes on disk.
+        changes: Human-readable plant changes and effects.
+    """
+
+    path: Path
+    moves: int
+    angles: tuple[float, ...]
+    scanner_time: float
+    seconds: float
+    size: int
+    changes: tuple[str, ...] = field(default=())
+
+    def __str__(self) -> str:
+        extra = f'; {", ".join(self.changes)}' if self.changes else ''
+        return (f'simulate: {self.moves} moves over {len(self.angles)} angle(s), '
+                f'{self.scanner_time:.2f} s of scanner time{extra} -> {self.path} '
+                f'({self.size / 1e6:.2f} MB) in {self.seconds:.2f} s')
+
+
+def write_moves(bag: BagWriter, moves: Iterable[Move], *, frame_id: str = '') -> int:
+    """Write simulator moves as the driver node publishes them; return how many.
+
+    The bag must have :data:`~galvo_sysid.field.bags.CURRENT_TOPIC` and
+    :data:`~galvo_sysid.field.bags.ENCODER_TOPIC` added as ``MoveSamples``.
+    """
+    count = 0
+    for move in moves:
+        ns = stamp_to_ns(move.stamp)
+        for topic, data in ((CURRENT_TOPIC, move.current), (ENCODER_TOPIC, move.encoder)):
+            msg = bag.move_samples(stamp=move.stamp, move_id=move.move_id,
+                                   target_angle=move.target_angle,
+                                   sample_period=move.sample_period, data=data,
+                                   frame_id=frame_id)
+            bag.write(topic, ns, msg)
+        count += 1
+    return count
+
+
+def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
+                 moves_per_angle: int = 200, seed: int = 0, storage: str = 'mcap',
+                 drift: Sequence[str] = (), steps: Sequence[str] = (),
+                 effects: Sequence[str] = (), config: SimulatorConfig | None = None,
+                 frame_id: str = '') -> SimulationSummary:
+    """Simulate a schedule of moves and write them into a new bag.
+
+    Args:
+        out: Bag directory to create.
+        angles: Target angles [deg]; each gets ``moves_per_angle`` moves alternating
+            +angle and -angle.
+        moves_per_angle: Moves per angle (even).
+        seed: Noise seed.
+        storage: ``'mcap'`` or ``'sqlite3'``.
+        drift: Drifts, ``PARAM=RATE/UNIT[@START]`` (see the module docs).
+        steps: Step changes, ``PARAM=FACTOR@WHEN``.
+        effects: Physical effects, ``NAME:KEY=VALUE,...``.
+        config: Base simulator configuration (default: the nominal scanner).
+        frame_id: Header frame id of the messages.
+
+    Raises:
+        ConfigurationError: Bad schedule, change or effect.
+        BagExistsError: ``out`` exists.
+    """
+    from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig
+
+    if not angles:
+        msg = 'no angles given'
+        raise ConfigurationError(msg)
+    if moves_per_angle < 2 or moves_per_angle % 2:  # forward and back
+        msg = f'moves-per-angle must be a positive even number, got {moves_per_angle}'
+        raise ConfigurationError(msg)
+    base = config or SimulatorConfig()
+    plant_effects = base.plant.effects
+    for text in effects:
+        name, params = parse_effect(text)
+        plant_effects = plant_effects.with_effect(name, params, dynamics=base.plant.dynamics,
+                                                  sample_period=base.sample_period)
+    cfg = replace(base, plant=replace(base.plant, effects=plant_effects),
+                  drifts=(*base.drifts, *(parse_drift(d) for d in drift)),
+                  steps=(*base.steps, *(parse_step(s) for s in steps)))
+    start = time.perf_counter()
+    sim = GalvoSimulator(config=cfg, seed=seed)
+    path = Path(out)
+    with BagWriter(path, storage=storage) as bag:
+        bag.add_topic(CURRENT_TOPIC, MOVE_SAMPLES)
+        bag.add_topic(ENCODER_TOPIC, MOVE_SAMPLES)
+        count = write_moves(bag, sim.moves(angles=list(angles),
+                                           moves_per_angle=moves_per_angle),
+                            frame_id=frame_id)
+    size = sum(p.stat().st_size for p in path.rglob('*') if p.is_file())
+    changes = (*(f'drift {d}' for d in drift), *(f'step {s}' for s in steps),
+               *(f'effect {e}' for e in effects))
+    return SimulationSummary(path=path, moves=count, angles=tuple(angles),
+                             scanner_time=sim.time, seconds=time.perf_counter() - start,
+                             size=size, changes=changes)

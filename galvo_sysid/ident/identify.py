@@ -1,0 +1,442 @@
+"""The identification entry point: one window of moves in, modal parameters with their std out.
+
+:func:`identify_window` takes M move records of one target angle (current and encoder, each
+record starting at rest at its start angle) and returns an :class:`IdentificationResult`:
+the modal parameters of P_mech (paper Eq. 1), one standard deviation per parameter, the input
+delay that was removed or modelled, and a fit measure. Methods:
+
+- ``'refined'`` (default): the structured output-error fit of :mod:`galvo_sysid.ident.refine`
+  (exact ZOH with one sample of computation delay and the estimated amplifier lag), started
+  from the paper pipeline's model; std from the sandwich covariance over the moves.
+- ``'paper-A'`` / ``'paper-B'``: the paper's pipeline
+(:func:`galvo_sysid.ident.paper.paper_pipeline`,
+  method A or B, 1.6 T pure delay); std from a delete-a-group jackknife over the moves.
+
+Pooled estimates of windows of the same plant:
+
+- :func:`pool_results` combines finished results (inverse-variance weighting per parameter,
+  outliers rejected, the std scaled up when the windows scatter more than their std say);
+- :func:`identify_joint` fits one model to the windows' data at once (shared modal parameters,
+  per-window initial conditions): sharper for a weakly excited mode that single windows hardly
+  resolve (the third mode under smooth moves).
+
+``fit_percent`` is ``100 (1 - ||yf - yf_model|| / ||yf - mean(yf)||)`` on the window's
+averaged output **filtered by (1 - q^-1)^2** (the same for every method): the raw output is
+dominated by the rigid-body motion (every model fits it to 99.9 %), the filtered one by the
+acceleration and the vibrations the modal parameters describe. The model output includes the
+identified input dynamics and least-squares initial conditions of the modes and an offset.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError, InvalidDataError
+from galvo_sysid.ident.paper import PAPER_DELAY, paper_pipeline
+from galvo_sysid.ident.preprocess import MIN_ANGLE_SPAN, validate_records
+from galvo_sysid.ident.refine import model_fit_percent, refine_fit, refine_joint
+from galvo_sysid.model.modal import REFERENCE_MODEL, ModalModel
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    'METHODS',
+    'IdentificationResult',
+    'identify_joint',
+    'identify_window',
+    'pool_results',
+]
+
+METHODS = ('refined', 'paper-A', 'paper-B')
+"""Methods :func:`identify_window` accepts."""
+
+_JACKKNIFE_GROUPS = 10
+
+
+@dataclass(frozen=True)
+class IdentificationResult:
+    """Modal parameters of one window (or a pool of windows) with their uncertainty.
+
+    Attributes:
+        target_angle: Signed commanded rotation of the window's moves [deg] (nan for a pool
+            of different angles).
+        moves: Moves used.
+        input_delay: Equivalent input delay removed before the fit or modelled in it [s]
+            (computation delay + dead time + amplifier lag).
+        lag_time_constant: Amplifier lag used or estimated [s] (0 if a pure delay was assumed).
+        k0: Rigid-body gain [deg/(A s^2)].
+        residues: k_i, ascending frequency.
+        natural_frequencies: omega_i [rad/s].
+        damping_ratios: zeta_i.
+        k0_std: Standard deviation of k0.
+        residues_std: Standard deviations of k_i.
+        natural_frequencies_std: Standard deviations of omega_i.
+        damping_ratios_std: Standard deviations of zeta_i.
+        fit_percent: Fit of the (1 - q^-1)^2-filtered averaged output [%] (see module docs).
+        method: ``'paper-A'``, ``'paper-B'`` or ``'refined'``.
+    """
+
+    target_angle: float
+    moves: int
+    input_delay: float
+    lag_time_constant: float
+    k0: float
+    residues: tuple[float, ...]
+    natural_frequencies: tuple[float, ...]
+    damping_ratios: tuple[float, ...]
+    k0_std: float
+    residues_std: tuple[float, ...]
+    natural_frequencies_std: tuple[float, ...]
+    damping_ratios_std: tuple[float, ...]
+    fit_percent: float
+    method: str
+
+    @property
+    def model(self) -> ModalModel:
+        """The identified modal model."""
+        return ModalModel(k0=self.k0, residues=self.residues,
+                          natural_frequencies=self.natural_frequencies,
+                          damping_ratios=self.damping_ratios)
+
+    @property
+    def n_modes(self) -> int:
+        """Number of resonant modes."""
+        return len(self.residues)
+
+    def std_by_name(self) -> dict[str, float]:
+        """Standard deviation of every parameter, keyed like :meth:`ModalModel.parameters`."""
+        out = {'k0': float(self.k0_std)}
+        for prefix, values in (('k', self.residues_std), ('omega_', self.natural_frequencies_std),
+                               ('zeta_', self.damping_ratios_std)):
+            for i, v in enumerate(values, start=1):
+                out[f'{prefix}{i}'] = float(v)
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict keyed by the field names (tuples as lists, non-finite as None)."""
+
+        def clean(v: Any) -> Any:
+            if isinstance(v, tuple):
+                return [clean(x) for x in v]
+            if isinstance(v, float):
+                return v if math.isfinite(v) else None
+            return v
+
+        return {f.name: clean(getattr(self, f.name)) for f in fields(self)}
+
+
+def _from_vectors(values: dict[str, float], stds: dict[str, float], *, n_modes: int,
+                  **meta: Any) -> IdentificationResult:
+    def pick(src: dict[str, float], prefix: str) -> tuple[float, ...]:
+        return tuple(float(src[f'{prefix}{i}']) for i in range(1, n_modes + 1))
+
+    return IdentificationResult(
+        k0=float(values['k0']), residues=pick(values, 'k'),
+        natural_frequencies=pick(values, 'omega_'), damping_ratios=pick(values, 'zeta_'),
+        k0_std=float(stds['k0']), residues_std=pick(stds, 'k'),
+        natural_frequencies_std=pick(stds, 'omega_'), damping_ratios_std=pick(stds, 'zeta_'),
+        **meta)
+
+
+def _estimated_angle(enc: NDArray[np.float64]) -> float:
+    """Median over the moves of the final angle minus the start angle [deg]."""
+    tail = max(1, enc.shape[1] // 16)
+    return float(np.median(enc[:, -tail:].mean(axis=1) - enc[:, 0]))
+
+
+def _paper_window(cur: NDArray[np.float64], enc: NDArray[np.float64], *, sample_period: float,
+                  method: str, options: dict[str, Any]) -> tuple[ModalModel, float, float]:
+    """Paper pipeline on a window: (model, delay, fit_percent)."""
+    res = paper_pipeline(cur, enc, sample_period=sample_period, method=method, **options)
+    fit = model_fit_percent(res.model, cur, enc, sample_period=sample_period,
+                            computation_delay=0, dead_time=float(res.delay))
+    return res.model, float(res.delay), fit
+
+
+def _jackknife_std(cur: NDArray[np.float64], enc: NDArray[np.float64], *, sample_period: float,
+                   method: str, options: dict[str, Any], groups: int) -> dict[str, float]:
+    """Delete-a-group jackknife std of the paper pipeline's parameters."""
+    m = cur.shape[0]
+    g = min(groups, m)
+    if g < 3:
+        return {}
+    labels = np.arange(m) % g
+    estimates = []
+    for j in range(g):
+        keep = labels != j
+        try:
+            model = paper_pipeline(cur[keep], enc[keep], sample_period=sample_period,
+                                   method=method, **options).model
+        except GalvoSysidError:
+            continue
+        estimates.append(list(model.parameters().values()))
+    if len(estimates) < 3:
+        return {}
+    est = np.array(estimates)
+    k = est.shape[0]
+    var = (k - 1) / k * np.sum((est - est.mean(axis=0)) ** 2, axis=0)
+    names = list(model.parameters())
+    return {n: float(math.sqrt(v)) for n, v in zip(names, var, strict=True)}
+
+
+def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
+                    method: str = 'refined', target_angle: float | None = None,
+                    n_modes: int = 3, **options: Any) -> IdentificationResult:
+    """Identify the modal model from one window of moves.
+
+    Args:
+        current: Current records [A], shape (M, N): M moves of one target angle.
+        encoder: Encoder records [deg], shape (M, N), raw (each starts at rest at its start
+            angle, which is subtracted).
+        sample_period: Sampling period [s].
+        method: ``'refined'`` (default), ``'paper-A'`` or ``'paper-B'``.
+        target_angle: Signed commanded rotation [deg]; estimated from the encoder if None.
+        n_modes: Resonant modes to identify (the bands must match: pass ``bands`` for
+            anything but the reference model's 3 modes).
+        **options: Passed on. Common: ``bands`` (per-mode frequency bands [rad/s]),
+            ``reference`` (model setting the default bands, default Table I),
+            ``min_angle_span`` [deg]. Paper methods: ``delay`` (default 1.6 T; None estimates
+            it), ``na``, ``nb``, ``solver``, ``max_damping``, ``jackknife_groups``
+            (default 10; 0 for no std, reported as nan). Refined: ``lag_time_constant``,
+            ``estimate_lag``, ``computation_delay``, ``dead_time``, ``damping_start``,
+            ``extra_starts``, ``scan_points``, ``lag_bounds``, ``resolve_z``, ``whiten_order``,
+            ``adequacy_limit``, ``max_nfev`` (see
+            :func:`galvo_sysid.ident.refine.refine_fit`).
+
+    Returns:
+        The identified parameters with their standard deviations.
+
+    Raises:
+        InvalidDataError: Wrong shapes, too few or too short records, NaN/Inf, no excitation.
+        IdentificationError: The fit failed, or a band holds no physical mode.
+        ConfigurationError: Unknown method or options.
+    """
+    if method not in METHODS:
+        raise ConfigurationError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
+    if not (isinstance(sample_period, int | float) and math.isfinite(sample_period)
+            and sample_period > 0):
+        raise ConfigurationError(f'sample_period must be positive and finite, got {sample_period}')
+    opts = dict(options)
+    reference: ModalModel = opts.pop('reference', REFERENCE_MODEL)
+    bands = opts.pop('bands', None)
+    min_span = float(opts.pop('min_angle_span', MIN_ANGLE_SPAN))
+    if n_modes < 1:
+        raise ConfigurationError(f'n_modes must be >= 1, got {n_modes}')
+    if bands is None and n_modes != reference.n_modes:
+        raise ConfigurationError(f'n_modes={n_modes} but the reference model has '
+                                 f'{reference.n_modes} modes; pass bands')
+    if bands is not None and len(bands) != n_modes:
+        raise ConfigurationError(f'{len(bands)} bands for n_modes={n_modes}')
+    paper_keys = {'delay', 'na', 'nb', 'solver', 'max_damping'}
+    refine_keys = {'lag_time_constant', 'estimate_lag', 'computation_delay', 'dead_time',
+                   'damping_start', 'extra_starts', 'scan_points', 'lag_bounds', 'max_nfev',
+                   'resolve_z', 'whiten_order', 'adequacy_limit'}
+    groups = int(opts.pop('jackknife_groups', _JACKKNIFE_GROUPS))
+    allowed = paper_keys | (refine_keys if method == 'refined' else set())
+    unknown = set(opts) - allowed
+    if unknown:
+        raise ConfigurationError(f'unknown options for method {method!r}: {sorted(unknown)}')
+    paper_opts = {k: opts[k] for k in paper_keys & set(opts)}
+    paper_opts.update(bands=bands, reference=reference, min_angle_span=min_span)
+    cur, enc = validate_records(current, encoder, na=paper_opts.get('na', 15),
+                                nb=paper_opts.get('nb', 15), min_angle_span=min_span)
+    enc = enc - enc[:, :1]
+    angle = _estimated_angle(enc) if target_angle is None else float(target_angle)
+    moves = cur.shape[0]
+    if method in ('paper-A', 'paper-B'):
+        which = method[-1]
+        model, delay, fit = _paper_window(cur, enc, sample_period=sample_period, method=which,
+                                          options=paper_opts)
+        stds = _jackknife_std(cur, enc, sample_period=sample_period, method=which,
+                              options=paper_opts, groups=groups) if groups else {}
+        if not stds:
+            stds = dict.fromkeys(model.parameters(), float('nan'))
+        return _from_vectors(model.parameters(), stds, n_modes=model.n_modes,
+                             target_angle=angle, moves=moves, input_delay=delay,
+                             lag_time_constant=0.0, fit_percent=fit, method=method)
+    # Refined: start from the paper pipeline (method A); its failure is not fatal because the
+    # refined fit scans every band for its own start.
+    try:
+        initial = paper_pipeline(cur, enc, sample_period=sample_period, method='A',
+                                 delay=paper_opts.pop('delay', PAPER_DELAY),
+                                 **paper_opts).model
+    except GalvoSysidError:
+        initial = reference
+    if initial.n_modes != n_modes:
+        raise ConfigurationError(f'the starting model has {initial.n_modes} modes, not {n_modes}')
+    refine_opts = {k: opts[k] for k in refine_keys & set(opts)}
+    refined = refine_fit(cur, enc, sample_period=sample_period, initial=initial, bands=bands,
+                         **refine_opts)
+    return _from_vectors(refined.model.parameters(), refined.std_by_name(), n_modes=n_modes,
+                         target_angle=angle, moves=moves, input_delay=refined.input_delay,
+                         lag_time_constant=refined.lag_time_constant,
+                         fit_percent=refined.fit_percent, method='refined')
+
+
+def _pool_parameter(v: NDArray[np.float64], s: NDArray[np.float64], *,
+                    reject: float) -> tuple[float, float]:
+    """Inverse-variance mean and std of one parameter, with outlier rejection."""
+    ok = np.isfinite(s) & (s > 0) & np.isfinite(v)
+    if not np.any(ok):
+        finite = v[np.isfinite(v)]
+        return (float(np.mean(finite)) if finite.size else float('nan')), float('nan')
+    v, s = v[ok], s[ok]
+    if reject > 0 and v.size > 2:
+        # Robust centre: the median of the better-determined half of the windows (a weighted
+        # median would follow a single outlier with a tiny std); drop windows farther from it
+        # than ``reject`` of their own std.
+        centre = float(np.median(v[s <= np.median(s)]))
+        keep = np.abs(v - centre) <= reject * s
+        if np.count_nonzero(keep) >= max(2, v.size // 2):
+            v, s = v[keep], s[keep]
+    # weights relative to the smallest std (in (0, 1]): 1/std^2 itself under- or overflows
+    # for extreme stds
+    scale = float(np.min(s))
+    with np.errstate(under='ignore'):
+        w = (scale / s) ** 2
+    mean = float(np.sum(w * v) / np.sum(w))
+    std = scale / math.sqrt(float(np.sum(w)))
+    if v.size > 1:
+        with np.errstate(over='ignore', invalid='ignore'):
+            chi2 = float(np.sum(w * ((v - mean) / scale) ** 2))
+        std *= max(1.0, math.sqrt(chi2 / (v.size - 1)))
+    return mean, std
+
+
+def pool_results(results: Sequence[IdentificationResult], *,
+                 reject: float = 5.0) -> IdentificationResult:
+    """Combine windows of the same plant: inverse-variance weighted mean per parameter.
+
+    Per parameter: windows farther than ``reject`` of their own std from a robust centre (the
+    median of the better-determined half of the windows) are left out (a window whose weak
+    mode locked onto a noise peak reports a small std far from the others); the rest are
+    averaged with weights 1/std^2. The pooled std is the
+    inverse-variance std scaled by the Birge ratio ``sqrt(chi^2 / (n - 1))`` when that exceeds
+    1 (the windows scatter more than their std say, e.g. an angle-dependent bias). Windows
+    without a finite positive std for a parameter are left out of it (plain mean and nan std
+    if none has one).
+
+    Args:
+        results: Windows of one method and one number of modes.
+        reject: Outlier threshold in std (0: keep every window).
+
+    Returns:
+        The pooled result: ``target_angle`` is the common angle or nan, ``moves`` the total,
+        ``fit_percent`` the move-weighted mean, delays the means.
+
+    Raises:
+        InvalidDataError: No results, different methods or numbers of modes.
+    """
+    items = list(results)
+    if not items:
+        raise InvalidDataError('nothing to pool')
+    methods = {r.method for r in items}
+    if len(methods) != 1:
+        raise InvalidDataError(f'cannot pool different methods: {sorted(methods)}')
+    n_modes = {r.n_modes for r in items}
+    if len(n_modes) != 1:
+        raise InvalidDataError('cannot pool results with different numbers of modes')
+    values = [r.model.parameters() for r in items]
+    stds = [r.std_by_name() for r in items]
+    pooled: dict[str, float] = {}
+    pooled_std: dict[str, float] = {}
+    for name in values[0]:
+        v = np.array([p[name] for p in values])
+        s = np.array([p[name] for p in stds])
+        pooled[name], pooled_std[name] = _pool_parameter(v, s, reject=reject)
+    angles = {r.target_angle for r in items}
+    angle = items[0].target_angle if len(angles) == 1 else float('nan')
+    moves = int(sum(r.moves for r in items))
+    weights = np.array([r.moves for r in items], dtype=float)
+    fits = np.array([r.fit_percent for r in items])
+    fit = float(np.sum(weights * fits) / np.sum(weights)) if np.all(np.isfinite(fits)) \
+        else float(np.nanmean(fits)) if np.any(np.isfinite(fits)) else float('nan')
+    return _from_vectors(pooled, pooled_std, n_modes=n_modes.pop(), target_angle=angle,
+                         moves=moves,
+                         input_delay=float(np.mean([r.input_delay for r in items])),
+                         lag_time_constant=float(np.mean([r.lag_time_constant for r in items])),
+                         fit_percent=fit, method=methods.pop())
+
+
+def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float,
+                   initial: IdentificationResult | ModalModel | None = None,
+                   target_angle: float | None = None, n_modes: int = 3,
+                   **options: Any) -> IdentificationResult:
+    """Identify one modal model from several windows of the same plant (joint refined fit).
+
+    Args:
+        windows: ``(current, encoder)`` per window, each (M_w, N_w) raw records as for
+            :func:`identify_window` (M_w >= 3).
+        sample_period: Sampling period [s].
+        initial: Starting model; default: :func:`pool_results` of :func:`identify_window`
+            on each window (windows whose single fit fails still enter the joint fit).
+        target_angle: Reported angle (default: the common estimated angle, nan if they differ).
+        n_modes: Resonant modes (pass ``bands`` unless it is the reference model's 3).
+        **options: ``bands``, ``reference``, ``min_angle_span`` and the refined options of
+            :func:`identify_window` (``scan_points``, ``whiten_order``, ...), and
+            ``keep_initial_damping`` (start from ``initial`` as it is; see
+            :func:`galvo_sysid.ident.refine.refine_joint`).
+
+    Returns:
+        The joint estimate (``method='refined'``, ``moves`` the total).
+
+    Raises:
+        InvalidDataError: No windows or a bad window.
+        IdentificationError: The joint fit failed.
+        ConfigurationError: Bad options.
+    """
+    if not windows:
+        raise InvalidDataError('no windows to fit')
+    opts = dict(options)
+    reference: ModalModel = opts.get('reference', REFERENCE_MODEL)
+    bands = opts.get('bands')
+    min_span = float(opts.get('min_angle_span', MIN_ANGLE_SPAN))
+    joint_keys = {'lag_time_constant', 'estimate_lag', 'computation_delay', 'dead_time',
+                  'damping_start', 'scan_points', 'lag_bounds', 'max_nfev', 'resolve_z',
+                  'whiten_order', 'keep_initial_damping'}
+    unknown = set(opts) - joint_keys - {'reference', 'bands', 'min_angle_span', 'extra_starts',
+                                        'adequacy_limit', 'delay', 'na', 'nb', 'solver',
+                                        'max_damping'}
+    if unknown:
+        raise ConfigurationError(f'unknown options for identify_joint: {sorted(unknown)}')
+    records = []
+    for j, (current, encoder) in enumerate(windows):
+        try:
+            cur, enc = validate_records(current, encoder, min_records=3, min_angle_span=min_span)
+        except InvalidDataError as exc:
+            raise InvalidDataError(f'window {j}: {exc}') from exc
+        records.append((cur, enc - enc[:, :1]))
+    if isinstance(initial, IdentificationResult):
+        start = initial.model
+    elif isinstance(initial, ModalModel):
+        start = initial
+    else:
+        singles = []
+        for cur, enc in records:
+            try:
+                singles.append(identify_window(cur, enc, sample_period=sample_period,
+                                               n_modes=n_modes, **opts))
+            except GalvoSysidError:
+                continue
+        start = pool_results(singles).model if singles else reference
+    if start.n_modes != n_modes:
+        raise ConfigurationError(f'the starting model has {start.n_modes} modes, not {n_modes}')
+    fit = refine_joint(records, sample_period=sample_period, initial=start, bands=bands,
+                       **{k: opts[k] for k in joint_keys & set(opts)})
+    if target_angle is None:
+        est = np.array([_estimated_angle(enc) for _, enc in records])
+        same = np.ptp(est) <= 0.01 * float(np.median(np.abs(est)))
+        angle = float(np.median(est)) if same else float('nan')
+    else:
+        angle = float(target_angle)
+    return _from_vectors(fit.model.parameters(), fit.std_by_name(), n_modes=n_modes,
+                         target_angle=angle, moves=int(sum(c.shape[0] for c, _ in records)),
+                         input_delay=fit.input_delay, lag_time_constant=fit.lag_time_constant,
+                         fit_percent=fit.fit_percent, method='refined')

@@ -1,0 +1,4 @@
+"""Topic names and message conversions.
+
+Between ROS messages and plain values.
+"""

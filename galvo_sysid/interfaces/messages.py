@@ -1,0 +1,237 @@
+"""Conversions between galvo_sysid_msgs messages and the plain values of the numerics.
+
+No rclpy here: every function reads or writes messages by field name (duck typing), so the
+same code serves rclpy messages in the nodes and rosbags-deserialized messages in
+``galvo-sysid`` (bags). ``*_fields`` functions return plain field dictionaries (sequences as
+float64 arrays, no header) that a rosbags message class accepts; :func:`fill` sets them on an
+existing message (rclpy's float64[] fields get an ``array.array``).
+
+- ``MoveSamples`` <-> :class:`~galvo_sysid.monitor.pairing.MoveHalf`
+- ``ModalParameters`` <-> :class:`~galvo_sysid.ident.identify.IdentificationResult`
+- ``DriftStatus`` <-> :class:`~galvo_sysid.monitor.drift.DriftVerdict`
+- :func:`diagnostic_values`: the key/values of a verdict for ``diagnostic_msgs/KeyValue``.
+"""
+
+from __future__ import annotations
+
+import array
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from galvo_sysid.errors import InvalidDataError
+from galvo_sysid.monitor.drift import LEVEL_NAMES, STALE, DriftVerdict
+from galvo_sysid.monitor.pairing import SIGNALS, MoveHalf
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from galvo_sysid.ident.identify import IdentificationResult
+
+__all__ = [
+    'diagnostic_values',
+    'drift_status_fields',
+    'fill',
+    'fill_header',
+    'modal_parameters_fields',
+    'move_half_from_msg',
+    'move_samples_fields',
+    'result_from_msg',
+    'seconds_to_stamp',
+    'stamp_to_seconds',
+    'verdict_from_msg',
+]
+
+_NS = 1_000_000_000
+
+
+def stamp_to_seconds(stamp: Any) -> float:
+    """Seconds of a ``builtin_interfaces/Time`` (anything with ``sec`` and ``nanosec``)."""
+    try:
+        return float(int(stamp.sec) + int(stamp.nanosec) * 1e-9)
+    except (AttributeError, TypeError, ValueError, OverflowError) as err:
+        raise InvalidDataError(f'not a time stamp: {err}') from err
+
+
+def seconds_to_stamp(seconds: float) -> tuple[int, int]:
+    """``(sec, nanosec)`` of a time in seconds (rounded to the nanosecond)."""
+    if not math.isfinite(seconds):
+        raise InvalidDataError(f'cannot stamp a non-finite time {seconds!r}')
+    sec, nanosec = divmod(round(seconds * _NS), _NS)
+    if not -(2**31) <= sec < 2**31:
+        raise InvalidDataError(f'time {seconds!r} s does not fit a ROS stamp')
+    return int(sec), int(nanosec)
+
+
+def move_half_from_msg(msg: Any, *, signal: str) -> MoveHalf:
+    """A ``MoveSamples`` message as a :class:`MoveHalf` (``signal``: 'current' or 'encoder').
+
+    The samples are viewed, not copied, where the message allows it. The values are not
+    judged here (NaN, lengths, ...): :class:`~galvo_sysid.monitor.pairing.MoveWindower` does that.
+
+    Raises:
+        InvalidDataError: The message lacks a field or a field has the wrong type.
+    """
+    if signal not in SIGNALS:
+        raise InvalidDataError(f'signal must be one of {SIGNALS}, got {signal!r}')
+    try:
+        data = msg.data
+        if isinstance(data, array.array) and data.typecode == 'd':
+            values = np.frombuffer(data, dtype=np.float64) if len(data) else np.zeros(0)
+        else:
+            values = np.asarray(data, dtype=np.float64)
+        return MoveHalf(signal=signal, move_id=int(msg.move_id),
+                        target_angle=float(msg.target_angle),
+                        sample_period=float(msg.sample_period),
+                        stamp=stamp_to_seconds(msg.header.stamp), data=values)
+    except (AttributeError, TypeError, ValueError, OverflowError) as err:
+        raise InvalidDataError(f'bad MoveSamples message on {signal}: {err}') from err
+
+
+def move_samples_fields(*, move_id: int, target_angle: float, sample_period: float,
+                        data: Any) -> dict[str, Any]:
+    """Fields of a ``MoveSamples`` message (without its header)."""
+    return {'move_id': int(move_id), 'target_angle': float(target_angle),
+            'sample_period': float(sample_period),
+            'data': np.ascontiguousarray(data, dtype=np.float64)}
+
+
+def _floats(values: Any) -> np.ndarray[Any, np.dtype[np.float64]]:
+    return np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(-1))
+
+
+def modal_parameters_fields(result: IdentificationResult, *,
+                            window_index: int) -> dict[str, Any]:
+    """Fields of a ``ModalParameters`` message (without its header) for one window's result."""
+    return {
+        'window_index': int(window_index),
+        'target_angle': float(result.target_angle),
+        'moves': int(result.moves),
+        'input_delay': float(result.input_delay),
+        'k0': float(result.k0),
+        'residues': _floats(result.residues),
+        'natural_frequencies': _floats(result.natural_frequencies),
+        'damping_ratios': _floats(result.damping_ratios),
+        'k0_std': float(result.k0_std),
+        'residues_std': _floats(result.residues_std),
+        'natural_frequencies_std': _floats(result.natural_frequencies_std),
+        'damping_ratios_std': _floats(result.damping_ratios_std),
+        'fit_percent': float(result.fit_percent),
+    }
+
+
+def _tuple(values: Any) -> tuple[float, ...]:
+    return tuple(float(v) for v in values)
+
+
+def result_from_msg(msg: Any, *, method: str = 'refined',
+                    lag_time_constant: float = 0.0) -> IdentificationResult:
+    """An :class:`~galvo_sysid.ident.identify.IdentificationResult` from a ``ModalParameters``.
+
+    The message does not carry the method or the amplifier lag; they are taken from the
+    arguments.
+
+    Raises:
+        InvalidDataError: A field is missing or the mode arrays differ in length.
+    """
+    from galvo_sysid.ident.identify import IdentificationResult
+
+    try:
+        residues = _tuple(msg.residues)
+        frequencies = _tuple(msg.natural_frequencies)
+        damping = _tuple(msg.damping_ratios)
+        residues_std = _tuple(msg.residues_std)
+        frequencies_std = _tuple(msg.natural_frequencies_std)
+        damping_std = _tuple(msg.damping_ratios_std)
+        if {len(frequencies), len(damping), len(residues_std), len(frequencies_std),
+                len(damping_std)} != {len(residues)}:
+            raise InvalidDataError('ModalParameters: mode arrays differ in length')
+        return IdentificationResult(
+            target_angle=float(msg.target_angle), moves=int(msg.moves),
+            input_delay=float(msg.input_delay), lag_time_constant=float(lag_time_constant),
+            k0=float(msg.k0), residues=residues, natural_frequencies=frequencies,
+            damping_ratios=damping, k0_std=float(msg.k0_std), residues_std=residues_std,
+            natural_frequencies_std=frequencies_std, damping_ratios_std=damping_std,
+            fit_percent=float(msg.fit_percent), method=method)
+    except (AttributeError, TypeError, ValueError, OverflowError) as err:
+        if isinstance(err, InvalidDataError):
+            raise
+        raise InvalidDataError(f'bad ModalParameters message: {err}') from err
+
+
+def drift_status_fields(verdict: DriftVerdict) -> dict[str, Any]:
+    """Fields of a ``DriftStatus`` message (without its header)."""
+    return {
+        'window_index': max(0, int(verdict.window_index)),
+        'level': int(verdict.level),
+        'names': list(verdict.names),
+        'relative_deviation': _floats(verdict.relative_deviation),
+        'tolerance': _floats(verdict.tolerance),
+        'message': verdict.message,
+    }
+
+
+def verdict_from_msg(msg: Any) -> DriftVerdict:
+    """A :class:`~galvo_sysid.monitor.drift.DriftVerdict` from a ``DriftStatus`` message.
+
+    Raises:
+        InvalidDataError: A field is missing or the level is unknown.
+    """
+    try:
+        level = msg.level
+        level = int.from_bytes(level, 'little') if isinstance(level, bytes) else int(level)
+        verdict = DriftVerdict(window_index=int(msg.window_index), level=level,
+                               names=tuple(str(n) for n in msg.names),
+                               relative_deviation=_tuple(msg.relative_deviation),
+                               tolerance=_tuple(msg.tolerance), message=str(msg.message))
+    except (AttributeError, TypeError, ValueError, OverflowError) as err:
+        raise InvalidDataError(f'bad DriftStatus message: {err}') from err
+    if not 0 <= verdict.level <= STALE:
+        raise InvalidDataError(f'DriftStatus: unknown level {verdict.level}')
+    return verdict
+
+
+def diagnostic_values(verdict: DriftVerdict, *,
+                      extra: Mapping[str, str] | None = None) -> list[tuple[str, str]]:
+    """Key/value pairs describing a verdict, for ``diagnostic_msgs/KeyValue``.
+
+    One entry per parameter: ``'omega_1': '-0.21 % (tolerance 1 %, std 0.02 %)'``, after
+    ``verdict``, ``window_index`` and ``target_angle [deg]`` and before ``extra``.
+    """
+    out = [('verdict', LEVEL_NAMES[verdict.level]), ('window_index', str(verdict.window_index))]
+    if math.isfinite(verdict.target_angle):
+        out.append(('target_angle [deg]', f'{verdict.target_angle:g}'))
+    stds = verdict.relative_std or (math.nan,) * len(verdict.names)
+    for name, d, t, s in zip(verdict.names, verdict.relative_deviation, verdict.tolerance,
+                             stds, strict=False):
+        if not math.isfinite(d):
+            out.append((name, 'n/a'))
+            continue
+        text = f'{100 * d:+.3f} % (tolerance {100 * t:g} %'
+        text += f', std {100 * s:.3f} %)' if math.isfinite(s) else ')'
+        if name in verdict.flagged:
+            text += ' FLAGGED'
+        out.append((name, text))
+    out.extend((extra or {}).items())
+    return out
+
+
+def fill_header(msg: Any, *, stamp: float, frame_id: str = '') -> None:
+    """Set ``msg.header`` (stamp in seconds) on a message whose header already exists."""
+    sec, nanosec = seconds_to_stamp(stamp)
+    msg.header.stamp.sec = sec
+    msg.header.stamp.nanosec = nanosec
+    msg.header.frame_id = frame_id
+
+
+def fill(msg: Any, fields: Mapping[str, Any]) -> Any:
+    """Set ``fields`` on ``msg`` and return it; float64 arrays go in as rclpy expects them."""
+    for name, value in fields.items():
+        current = getattr(msg, name)
+        if isinstance(value, np.ndarray) and isinstance(current, array.array):
+            buf = array.array(current.typecode)
+            buf.frombytes(np.ascontiguousarray(value, dtype=np.float64).tobytes())
+            value = buf
+        setattr(msg, name, value)
+    return msg

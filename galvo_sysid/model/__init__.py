@@ -1,0 +1,4 @@
+"""What the scanner is.
+
+The modal model, its input dynamics, the physical effects and the plant-model file.
+"""

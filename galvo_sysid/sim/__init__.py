@@ -1,0 +1,4 @@
+"""The closed-loop scanner simulator.
+
+Controller design, move profiles, the loop.
+"""

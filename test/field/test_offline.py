@@ -1,0 +1,215 @@
+"""Offline identification of bags: the same objects as the nodes, in the same order."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from galvo_sysid.errors import ConfigurationError, IdentificationError
+from galvo_sysid.field.bags import BagReader, SetAside
+from galvo_sysid.field.offline import identify_bag
+from galvo_sysid.field.simulate import simulate_bag
+from galvo_sysid.ident.identify import identify_joint, pool_results
+from galvo_sysid.model.modal import TAU
+from galvo_sysid.monitor.drift import DriftMonitor
+from galvo_sysid.monitor.online import fit_window
+from galvo_sysid.monitor.pairing import MoveWindower
+
+
+@pytest.fixture(scope='module')
+def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp('offline') / 'bag'
+    simulate_bag(path, angles=[0.3, 0.9], moves_per_angle=200, seed=12)
+    return path
+
+
+def test_same_as_the_node_objects_by_hand(bag: Path) -> None:
+    found = identify_bag(bag)
+    # the sysid node's path, spelled out: MoveWindower -> fit_window -> DriftMonitor
+    windower = MoveWindower(window_size=100)
+    monitor = DriftMonitor()
+    expected = []
+    with BagReader(bag) as reader:
+        for half in reader.move_halves():
+            assert not isinstance(half, SetAside)
+            for window in windower.add(half):
+                result = fit_window(window, method='refined', options={'na': 15, 'nb': 15})
+                expected.append((window.index, result, monitor.assess(
+                    result, window_index=window.index)))
+    assert [w.window_index for w in found.windows] == [i for i, _, _ in expected]
+    for w, (_, result, verdict) in zip(found.windows, expected, strict=True):
+        assert w.result == result
+        assert w.drift == verdict
+
+
+def _bag_windows(bag: Path) -> list:
+    windower = MoveWindower(window_size=100)
+    with BagReader(bag) as reader:
+        return [w for half in reader.move_halves() for w in windower.add(half)]
+
+
+def test_pooled_is_the_joint_fit_started_from_the_combination(bag: Path) -> None:
+    found = identify_bag(bag)
+    assert (found.pooling, found.pooled_windows, found.pooling_note) == ('joint', 4, None)
+    start = pool_results([w.result for w in found.windows])
+    windows = _bag_windows(bag)
+    expected = identify_joint([(w.current, w.encoder) for w in windows], sample_period=TAU,
+                              initial=start, target_angle=start.target_angle,
+                              keep_initial_damping=True)
+    assert found.pooled is not None
+    assert found.pooled.to_dict() == expected.to_dict()  # (target_angle nan: no ==)
+    assert found.pooled.moves == 400
+    assert found.pooled.to_dict() != start.to_dict()
+    out = found.to_dict()['pooled']
+    assert (out['pooling'], out['pooled_windows'], out['pooling_note']) == ('joint', 4, None)
+    assert out['k0_std'] == expected.k0_std > 0
+
+
+def test_inverse_variance_pooling_and_the_fallback(bag: Path, monkeypatch: pytest.MonkeyPatch,
+                                                   ) -> None:
+    import galvo_sysid.ident.identify
+
+    found = identify_bag(bag, pooling='inverse-variance')
+    start = pool_results([w.result for w in found.windows])
+    assert found.pooled is not None
+    assert found.pooled.to_dict() == start.to_dict()
+    assert (found.pooling, found.pooled_windows, found.pooling_note) == \
+        ('inverse-variance', 4, None)
+
+    def fail(*args: object, **kwargs: object) -> None:
+        raise IdentificationError('no physical mode 3 in the band')
+
+    monkeypatch.setattr(galvo_sysid.ident.identify, 'identify_joint', fail)
+    fallback = identify_bag(bag)
+    assert fallback.pooled is not None
+    assert fallback.pooled.to_dict() == start.to_dict()
+    assert fallback.pooling == 'inverse-variance'
+    assert fallback.pooling_note == 'joint fit failed: no physical mode 3 in the band'
+    assert fallback.to_dict()['pooled']['pooling_note'] == fallback.pooling_note
+
+
+def test_joint_windows_stay_spread_over_the_angles() -> None:
+    from galvo_sysid.field.offline import _keep
+    from galvo_sysid.monitor.pairing import Window
+
+    def window(index: int, angle: float, moves: int = 5) -> Window:
+        data = np.zeros((moves, 64))
+        return Window(index=index, target_angle=angle, sample_period=TAU, current=data,
+                      encoder=data, move_ids=tuple(range(moves)), first_stamp=0.0,
+                      last_stamp=0.0, partial=False)
+
+    kept: list[Window] = []
+    for i, angle in enumerate([1.0, 1.0, 1.0, 1.0, 2.0, 3.0, 2.0]):
+        _keep(kept, window(i, angle), limit=4)
+    # the angle holding the most loses its oldest window each time
+    assert [(w.index, w.target_angle) for w in kept] == [(3, 1.0), (4, 2.0), (5, 3.0),
+                                                          (6, 2.0)]
+    _keep(kept, window(7, 4.0, moves=2), limit=4)  # too few moves for the joint fit
+    assert len(kept) == 4
+
+
+def test_parallel_fits_give_identical_results(bag: Path) -> None:
+    one = identify_bag(bag, jobs=1)
+    two = identify_bag(bag, jobs=2)
+    assert one.to_dict() == two.to_dict()
+    assert len(one.windows) == 4
+
+
+def test_partial_windows_and_progress(bag: Path) -> None:
+    calls: list[tuple[int, int]] = []
+    found = identify_bag(bag, window_size=150, progress=lambda d, t: calls.append((d, t)))
+    assert calls[-1] == (800, 800)
+    assert len(calls) == 800
+    # 100 moves per signed angle: no complete window of 150, four partial ones (>= 75)
+    assert [w.partial for w in found.windows] == [True] * 4
+    assert [w.result.moves for w in found.windows] == [100] * 4
+    too_strict = identify_bag(bag, window_size=150, min_partial=101)
+    assert too_strict.windows == ()
+    assert too_strict.pooled is None
+    assert len(too_strict.rejected) == 400
+    assert 'incomplete at end' in too_strict.rejected[0]['reason']
+
+
+def test_paper_method(bag: Path) -> None:
+    found = identify_bag(bag, method='paper-A')
+    assert {w.result.method for w in found.windows} == {'paper-A'}
+    assert found.pooled is not None
+    assert found.pooled.method == 'paper-A'
+    assert found.pooling == 'inverse-variance'
+
+
+@pytest.mark.parametrize(('kwargs', 'match'), [
+    ({'method': 'fancy'}, 'unknown method'),
+    ({'min_partial': 1}, 'min_partial'),
+    ({'jobs': 0}, 'jobs'),
+    ({'method': 'paper-A', 'pooling': 'joint'}, 'not possible with method'),
+    ({'pooling': 'median'}, 'not possible'),
+    ({'joint_windows': 0}, 'joint_windows'),
+])
+def test_bad_settings(bag: Path, kwargs: dict, match: str) -> None:
+    with pytest.raises(ConfigurationError, match=match):
+        identify_bag(bag, **kwargs)
+
+
+def _monitor_settings(monitor: DriftMonitor) -> dict:
+    return {'reference': monitor.reference, 'tolerances': monitor.tolerances,
+            'noise_floor': monitor.noise_floor, 'warn_fraction': monitor.warn_fraction,
+            'n_sigma': monitor.n_sigma, 'trend_windows': monitor.trend_windows,
+            'trend_min_windows': monitor.trend_min_windows, 'trend_sigma': monitor.trend_sigma,
+            'trend_fraction': monitor.trend_fraction,
+            'min_fit_percent': monitor.min_fit_percent}
+
+
+def test_defaults_are_the_nodes_defaults() -> None:
+    from galvo_sysid.field.offline import WINDOWER_PARAMETERS, monitor_from_parameters
+    from galvo_sysid.nodes import sysid_node, watchdog_node
+
+    watchdog = {p.name: p.default for p in watchdog_node.PARAMETERS}
+    assert _monitor_settings(monitor_from_parameters(watchdog)) == \
+        _monitor_settings(DriftMonitor())  # what identify_bag uses without parameters
+    sysid = {p.name: p.default for p in sysid_node.PARAMETERS}
+    assert (sysid['method'], sysid['na'], sysid['nb'], sysid['window_size']) == \
+        ('refined', 15, 15, 100)
+    defaults = MoveWindower()
+    for name in WINDOWER_PARAMETERS:
+        assert getattr(defaults, name) == sysid[name], name
+
+
+def test_parameter_files(tmp_path: Path, repo: Path) -> None:
+    from galvo_sysid.field.offline import load_node_parameters, monitor_from_parameters
+
+    values = load_node_parameters(repo / 'config' / 'watchdog.yaml', 'watchdog')
+    monitor = monitor_from_parameters(values)
+    assert monitor.tolerances['omega_1'] == values['tolerances.omega_1']
+    assert monitor.reference.k0 == values['reference.k0']
+    custom = tmp_path / 'p.yaml'
+    custom.write_text('/**:\n  ros__parameters:\n    window_size: 80\n    na: 12\n'
+                      '/left/sysid:\n  ros__parameters:\n    window_size: 50\n'
+                      'watchdog:\n  ros__parameters:\n    tolerances: {k0: 0.5}\n'
+                      '    reference: {k0: 3.0e6}\n')
+    assert load_node_parameters(custom, 'sysid') == {'window_size': 50, 'na': 12}
+    watchdog = load_node_parameters(custom, 'watchdog')
+    assert watchdog['tolerances.k0'] == 0.5
+    monitor = monitor_from_parameters(watchdog)
+    assert monitor.reference.k0 == 3.0e6
+    assert monitor.tolerances['k0'] == 0.5
+    only_named = tmp_path / 'q.yaml'
+    only_named.write_text('driver:\n  ros__parameters: {seed: 1}\n')
+    with pytest.raises(ConfigurationError, match='no section'):
+        load_node_parameters(only_named, 'sysid')
+    broken = tmp_path / 'r.yaml'
+    broken.write_text('a: [\n')
+    with pytest.raises(ConfigurationError, match='cannot read'):
+        load_node_parameters(broken, 'sysid')
+    with pytest.raises(ConfigurationError):
+        monitor_from_parameters({'tolerances.k0': -1.0})
+
+
+def test_windower_settings_reach_the_windower(bag: Path) -> None:
+    found = identify_bag(bag, window_size=50, windower={'window_size': 999, 'samples': 512})
+    assert len(found.windows) == 8
+    strict = identify_bag(bag, windower={'samples': 500})
+    assert strict.windows == ()
+    assert 'expected 500' in strict.rejected[0]['reason']

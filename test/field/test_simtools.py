@@ -1,0 +1,77 @@
+"""Bags from the simulator: same messages as the driver node, plant changes and effects."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.field.bags import BagReader
+from galvo_sysid.field.offline import identify_bag
+from galvo_sysid.field.simulate import parse_drift, parse_effect, parse_step, simulate_bag
+from galvo_sysid.model.effects import Drift, StepChange
+from galvo_sysid.monitor.pairing import MoveHalf
+from galvo_sysid.sim.simulator import GalvoSimulator
+
+
+def test_parse_drift() -> None:
+    assert parse_drift('omega_1=-2e-5/move') == Drift('omega_1', -2e-5, unit='move')
+    assert parse_drift('k0 = -0.001/s @ 2') == Drift('k0', -0.001, unit='second', start=2.0)
+    assert parse_drift('zeta_2=1e-3/second@0.5s') == Drift('zeta_2', 1e-3, start=0.5)
+    for bad in ('omega_1=-2e-5', 'omega_1=fast/s', 'k0=1/s@3move', 'bogus=1/s'):
+        with pytest.raises(ConfigurationError):
+            parse_drift(bad)
+
+
+def test_parse_step_and_effect() -> None:
+    assert parse_step('k0=0.9@400') == StepChange('k0', 0.9, at=400, unit='move',
+                                                  relative=True)
+    assert parse_step('omega_2=1.01@1.5s') == StepChange('omega_2', 1.01, at=1.5,
+                                                         unit='second', relative=True)
+    with pytest.raises(ConfigurationError):
+        parse_step('k0=0.9')
+    assert parse_effect('coulomb_friction:friction_current=0.05') == (
+        'coulomb_friction', {'friction_current': 0.05})
+    assert parse_effect('unmodeled_resonance:natural_frequency=3e4, damping_ratio=0.01,'
+                        'residue=1e5') == ('unmodeled_resonance', {
+                            'natural_frequency': 3e4, 'damping_ratio': 0.01, 'residue': 1e5})
+    for bad in (':x=1', 'gain_change:gain_ratio', 'gain_change:gain_ratio=big'):
+        with pytest.raises(ConfigurationError):
+            parse_effect(bad)
+
+
+def test_bag_holds_the_simulator_moves(tmp_path: Path) -> None:
+    summary = simulate_bag(tmp_path / 'b', angles=[0.6], moves_per_angle=10, seed=4)
+    assert summary.moves == 10
+    assert summary.scanner_time == pytest.approx(10 * 606e-5)
+    moves = list(GalvoSimulator(seed=4).moves(angles=[0.6], moves_per_angle=10))
+    with BagReader(summary.path) as reader:
+        raws = list(reader.raw_messages())
+        halves = [h for h in reader.move_halves() if isinstance(h, MoveHalf)]
+    assert [r.timestamp for r in raws[::2]] == [round(m.stamp * 1e9) for m in moves]
+    assert len(halves) == 20
+    for h in halves:
+        m = moves[h.move_id]
+        assert h.target_angle == m.target_angle
+        assert h.stamp == pytest.approx(m.stamp, abs=1e-9)
+        assert h.sample_period == m.sample_period
+        np.testing.assert_array_equal(h.data, m.current if h.signal == 'current' else m.encoder)
+
+
+def test_effect_and_step_reach_the_plant(tmp_path: Path) -> None:
+    gain = simulate_bag(tmp_path / 'gain', angles=[0.3], moves_per_angle=200, seed=1,
+                        effects=['gain_change:gain_ratio=0.9'])
+    assert gain.changes == ('effect gain_change:gain_ratio=0.9',)
+    found = identify_bag(gain.path)
+    assert found.pooled is not None
+    assert found.pooled.k0 == pytest.approx(0.9 * 3.564e6, rel=0.01)
+    assert {w.drift.level_name for w in found.windows} == {'ERROR'}
+    step = simulate_bag(tmp_path / 'step', angles=[0.3], moves_per_angle=400, seed=1,
+                        steps=['omega_2=0.98@200'])
+    windows = identify_bag(step.path).windows
+    j = windows[0].drift.names.index('omega_2')
+    deviation = [w.drift.relative_deviation[j] for w in windows]
+    assert deviation[0] == pytest.approx(0.0, abs=0.003)
+    assert deviation[-1] == pytest.approx(-0.02, abs=0.003)

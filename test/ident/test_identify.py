@@ -1,0 +1,193 @@
+"""The identification entry point: methods compared, the result type, pooling, typed errors."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from galvo_sysid.errors import ConfigurationError, IdentificationError, InvalidDataError
+from galvo_sysid.ident.identify import (
+    IdentificationResult,
+    identify_joint,
+    identify_window,
+    pool_results,
+)
+from galvo_sysid.model.modal import PSI, REFERENCE_MODEL, TAU, ModalModel, relative_errors
+from galvo_sysid.sim.simulator import simulate_window
+
+FIELDS = ('target_angle', 'moves', 'input_delay', 'lag_time_constant', 'k0', 'residues',
+          'natural_frequencies', 'damping_ratios', 'k0_std', 'residues_std',
+          'natural_frequencies_std', 'damping_ratios_std', 'fit_percent', 'method')
+
+
+@pytest.fixture(scope='module')
+def windows_1psi() -> list[tuple[np.ndarray, np.ndarray]]:
+    return [simulate_window(PSI, moves=100, seed=seed) for seed in range(8)]
+
+
+def test_refined_beats_the_paper_pipeline(windows_1psi: list) -> None:
+    # Closed-loop data at 1 psi, 8 noise seeds: the refined fit's median |relative error| is
+    # below the paper pipeline's (method A, 1.6 T delay) for every parameter but k0, where
+    # both are at the noise limit (~0.005 %, 20x below the target) and may only tie.
+    paper, refined = [], []
+    for cur, enc in windows_1psi:
+        paper.append(relative_errors(identify_window(
+            cur, enc, sample_period=TAU, method='paper-A', jackknife_groups=0).model))
+        refined.append(relative_errors(identify_window(cur, enc, sample_period=TAU).model))
+    for name in REFERENCE_MODEL.parameters():
+        p = np.abs([e[name] for e in paper])
+        r = np.abs([e[name] for e in refined])
+        if name == 'k0':
+            assert np.sqrt(np.mean(r**2)) < 1.5 * np.sqrt(np.mean(p**2))
+            assert np.median(r) < 1e-3
+        else:
+            assert np.median(r) < np.median(p), name
+    # the paper's qualitative failures, gone: k2 about -20 % from the pure-delay assumption
+    assert np.median([e['k2'] for e in paper]) < -0.15
+    assert abs(np.median([e['k2'] for e in refined])) < 0.015
+
+
+def test_result_fields_and_serialisation(windows_1psi: list) -> None:
+    cur, enc = windows_1psi[0]
+    res = identify_window(cur, enc, sample_period=TAU)
+    assert res.method == 'refined'
+    assert res.moves == 100
+    assert res.target_angle == pytest.approx(PSI, abs=2e-3)
+    assert res.lag_time_constant == pytest.approx(0.6 * TAU, rel=0.1)
+    assert res.input_delay == pytest.approx(TAU + res.lag_time_constant)
+    assert 80 < res.fit_percent < 100
+    assert res.model.n_modes == 3
+    std = res.std_by_name()
+    assert list(std) == list(REFERENCE_MODEL.parameters())
+    assert all(math.isfinite(v) and v > 0 for v in std.values())
+    d = res.to_dict()
+    assert tuple(d) == FIELDS
+    assert json.loads(json.dumps(d))['residues'] == list(res.residues)
+    given = identify_window(cur, enc, sample_period=TAU, target_angle=-0.25)
+    assert given.target_angle == -0.25
+
+
+def test_paper_methods(windows_1psi: list) -> None:
+    cur, enc = windows_1psi[1]
+    res = identify_window(cur, enc, sample_period=TAU, method='paper-A')
+    assert res.method == 'paper-A'
+    assert res.lag_time_constant == 0.0
+    assert res.input_delay == pytest.approx(1.6 * TAU)
+    assert all(math.isfinite(v) and v > 0 for v in res.std_by_name().values())
+    # jackknife std of the well-determined parameters is of the size of their error scatter
+    assert res.std_by_name()['omega_1'] < 1e-3 * REFERENCE_MODEL.natural_frequencies[0]
+    no_std = identify_window(cur, enc, sample_period=TAU, method='paper-A', jackknife_groups=0)
+    assert math.isnan(no_std.k0_std)
+    assert no_std.k0 == res.k0
+
+
+def test_pool_is_sharper_than_a_window() -> None:
+    results = [identify_window(*simulate_window(a * PSI, moves=100, seed=40 + i),
+                               sample_period=TAU)
+               for i, a in enumerate((0.5, 1.0, 2.0, 4.0, 8.0))]
+    pooled = pool_results(results)
+    assert math.isnan(pooled.target_angle)
+    assert pooled.moves == 500
+    assert pooled.method == 'refined'
+    for name in ('k0', 'k1', 'k2', 'omega_1', 'omega_2', 'zeta_1', 'zeta_2'):
+        single = min(r.std_by_name()[name] for r in results)
+        assert pooled.std_by_name()[name] < single, name
+        truth = REFERENCE_MODEL.parameters()[name]
+        assert abs(pooled.model.parameters()[name] - truth) < 4 * pooled.std_by_name()[name]
+    same = pool_results(results[:1] * 3)
+    assert same.target_angle == results[0].target_angle
+
+
+def test_pool_rejects_a_locked_on_outlier() -> None:
+    base = identify_window(*simulate_window(PSI, moves=100, seed=3), sample_period=TAU)
+    good = [replace(base, natural_frequencies=(*base.natural_frequencies[:2], 1.674e5 + d),
+                    natural_frequencies_std=(*base.natural_frequencies_std[:2], 60.0))
+            for d in (-40.0, -10.0, 0.0, 20.0, 50.0)]
+    bad = replace(base, natural_frequencies=(*base.natural_frequencies[:2], 1.98e5),
+                  natural_frequencies_std=(*base.natural_frequencies_std[:2], 5.0))
+    pooled = pool_results([*good, bad])
+    assert pooled.natural_frequencies[2] == pytest.approx(1.674e5, abs=100)
+    kept = pool_results([*good, bad], reject=0)
+    assert kept.natural_frequencies[2] > 1.69e5
+
+
+def test_joint_fit_resolves_the_weak_mode() -> None:
+    windows = [simulate_window(a * PSI, moves=100, seed=60 + i)
+               for i, a in enumerate((0.5, 1.0, 2.0, 4.0, 6.0, 8.0))]
+    singles = [identify_window(c, e, sample_period=TAU) for c, e in windows]
+    pooled = pool_results(singles)
+    joint = identify_joint(windows, sample_period=TAU, initial=pooled)
+    assert joint.moves == 600
+    assert joint.method == 'refined'
+    std = joint.std_by_name()
+    assert std['k3'] < 0.12 * abs(REFERENCE_MODEL.residues[2])
+    assert std['k3'] < min(r.std_by_name()['k3'] for r in singles)
+    errors = relative_errors(joint.model)
+    for name, value in joint.model.parameters().items():
+        truth = REFERENCE_MODEL.parameters()[name]
+        assert abs(value - truth) < 4 * std[name], (name, errors[name])
+    # started from the pooled results as they are (what identify_bag does): the same optimum
+    quick = identify_joint(windows, sample_period=TAU, initial=pooled,
+                           keep_initial_damping=True)
+    for name, value in quick.model.parameters().items():
+        assert abs(value - joint.model.parameters()[name]) < 0.1 * std[name], name
+    assert quick.std_by_name()['k3'] == pytest.approx(std['k3'], rel=0.05)
+
+
+def test_bad_input_raises_typed_errors(windows_1psi: list) -> None:
+    cur, enc = windows_1psi[0]
+    bad = enc.copy()
+    bad[3, 100] = np.inf
+    with pytest.raises(InvalidDataError, match='NaN or Inf'):
+        identify_window(cur, bad, sample_period=TAU)
+    with pytest.raises(InvalidDataError, match='shapes differ'):
+        identify_window(cur[:, :-1], enc, sample_period=TAU)
+    with pytest.raises(InvalidDataError, match='at least'):
+        identify_window(cur[:1], enc[:1], sample_period=TAU)
+    with pytest.raises(InvalidDataError, match='samples'):
+        identify_window(cur[:, :40], enc[:, :40], sample_period=TAU)
+    with pytest.raises(InvalidDataError, match='2-D'):
+        identify_window(cur[0], enc[0], sample_period=TAU)
+    zero_cur, zero_enc = simulate_window(0.0, moves=10, seed=0)
+    with pytest.raises(InvalidDataError, match='excitation'):
+        identify_window(zero_cur, zero_enc, sample_period=TAU)
+    with pytest.raises(ConfigurationError, match='method'):
+        identify_window(cur, enc, sample_period=TAU, method='magic')
+    with pytest.raises(ConfigurationError, match='unknown options'):
+        identify_window(cur, enc, sample_period=TAU, whiten=3)
+    with pytest.raises(ConfigurationError):
+        identify_window(cur, enc, sample_period=0.0)
+    with pytest.raises(ConfigurationError, match='bands'):
+        identify_window(cur, enc, sample_period=TAU, n_modes=2)
+    with pytest.raises(InvalidDataError):
+        pool_results([])
+    res = identify_window(cur, enc, sample_period=TAU)
+    with pytest.raises(InvalidDataError, match='methods'):
+        pool_results([res, replace(res, method='paper-A')])
+    with pytest.raises(InvalidDataError):
+        identify_joint([], sample_period=TAU)
+
+
+def test_band_without_a_mode_raises_identification_error(windows_1psi: list) -> None:
+    cur, enc = windows_1psi[2]
+    bands = ((5.5e4, 9.2e4), (1.3e5, 1.6e5), (1.7e5, 2.1e5))  # mode 2 is at 1.193e5
+    for method in ('refined', 'paper-A'):
+        with pytest.raises(IdentificationError):
+            identify_window(cur, enc, sample_period=TAU, method=method, bands=bands)
+
+
+def test_result_model_round_trip() -> None:
+    model = ModalModel(k0=1.0, residues=(2.0,), natural_frequencies=(3.0,),
+                       damping_ratios=(0.1,))
+    res = IdentificationResult(
+        target_angle=float('nan'), moves=1, input_delay=0.0, lag_time_constant=0.0, k0=1.0,
+        residues=(2.0,), natural_frequencies=(3.0,), damping_ratios=(0.1,), k0_std=0.1,
+        residues_std=(0.2,), natural_frequencies_std=(0.3,), damping_ratios_std=(0.01,),
+        fit_percent=float('nan'), method='refined')
+    assert res.model == model
+    assert res.to_dict()['target_angle'] is None
+    assert res.std_by_name() == {'k0': 0.1, 'k1': 0.2, 'omega_1': 0.3, 'zeta_1': 0.01}

@@ -1,0 +1,121 @@
+"""Message conversions (galvo_sysid.interfaces.messages) on rclpy messages and rosbags messages
+alike."""
+
+from __future__ import annotations
+
+import array
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from galvo_sysid_msgs.msg import DriftStatus, ModalParameters, MoveSamples
+
+from galvo_sysid.errors import InvalidDataError
+from galvo_sysid.ident.identify import IdentificationResult
+from galvo_sysid.interfaces.messages import (
+    diagnostic_values,
+    drift_status_fields,
+    fill,
+    fill_header,
+    modal_parameters_fields,
+    move_half_from_msg,
+    move_samples_fields,
+    result_from_msg,
+    seconds_to_stamp,
+    stamp_to_seconds,
+    verdict_from_msg,
+)
+from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.monitor.drift import DriftMonitor
+
+RESULT = IdentificationResult(
+    target_angle=-0.9, moves=100, input_delay=1.6e-5, lag_time_constant=6e-6,
+    k0=3.5e6, residues=(2.0e6, -5.4e6, -4.0e5), natural_frequencies=(7.1e4, 1.19e5, 1.67e5),
+    damping_ratios=(6e-3, 7.7e-3, 4.6e-3), k0_std=1e3, residues_std=(1e4, 2e4, 3e5),
+    natural_frequencies_std=(3.0, 9.0, 2e4), damping_ratios_std=(5e-5, 9e-5, 1e-2),
+    fit_percent=94.2, method='refined')
+
+
+def test_stamps_round_trip() -> None:
+    assert seconds_to_stamp(12.000000001) == (12, 1)
+    assert seconds_to_stamp(1795306078.322353128)[0] == 1795306078
+    sec, ns = seconds_to_stamp(5.25)
+    assert stamp_to_seconds(SimpleNamespace(sec=sec, nanosec=ns)) == pytest.approx(5.25)
+    with pytest.raises(InvalidDataError):
+        seconds_to_stamp(math.nan)
+    with pytest.raises(InvalidDataError):
+        stamp_to_seconds(object())
+
+
+def test_move_samples_round_trip_through_rclpy_message() -> None:
+    data = np.linspace(-1.0, 1.0, 512)
+    msg = fill(MoveSamples(), move_samples_fields(move_id=42, target_angle=-0.3,
+                                                  sample_period=1e-5, data=data))
+    fill_header(msg, stamp=100.5)
+    assert isinstance(msg.data, array.array)
+    half = move_half_from_msg(msg, signal='encoder')
+    assert half.signal == 'encoder'
+    assert half.move_id == 42
+    assert half.target_angle == -0.3
+    assert half.sample_period == 1e-5
+    assert half.stamp == pytest.approx(100.5)
+    np.testing.assert_array_equal(half.data, data)
+
+
+def test_move_half_from_a_rosbags_like_message() -> None:
+    msg = SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(sec=3, nanosec=5)),
+                          move_id=7, target_angle=0.6, sample_period=1e-5,
+                          data=np.arange(4.0))
+    half = move_half_from_msg(msg, signal='current')
+    assert half.stamp == pytest.approx(3.000000005)
+    np.testing.assert_array_equal(half.data, [0, 1, 2, 3])
+    empty = fill(MoveSamples(), {})
+    assert move_half_from_msg(empty, signal='current').data.shape == (0,)
+
+
+@pytest.mark.parametrize('broken', [
+    SimpleNamespace(move_id=1),  # no fields
+    SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(sec=0, nanosec=0)),
+                    move_id='x', target_angle=0.3, sample_period=1e-5, data=[1.0]),
+    SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(sec=0, nanosec=0)),
+                    move_id=1, target_angle=0.3, sample_period=1e-5, data=['a']),
+])
+def test_broken_move_samples_raise_invalid_data(broken: object) -> None:
+    with pytest.raises(InvalidDataError):
+        move_half_from_msg(broken, signal='current')
+    with pytest.raises(InvalidDataError):
+        move_half_from_msg(MoveSamples(), signal='velocity')
+
+
+def test_modal_parameters_round_trip() -> None:
+    msg = fill(ModalParameters(), modal_parameters_fields(RESULT, window_index=9))
+    assert msg.window_index == 9
+    assert msg.moves == 100
+    assert list(msg.natural_frequencies) == [7.1e4, 1.19e5, 1.67e5]
+    back = result_from_msg(msg, lag_time_constant=6e-6)
+    assert back == RESULT
+    msg.damping_ratios_std = [1.0]
+    with pytest.raises(InvalidDataError, match='differ in length'):
+        result_from_msg(msg)
+
+
+def test_drift_status_round_trip_and_diagnostics() -> None:
+    verdict = DriftMonitor().assess(RESULT, window_index=5)
+    msg = fill(DriftStatus(), drift_status_fields(verdict))
+    back = verdict_from_msg(msg)
+    assert back.level == verdict.level
+    assert back.names == verdict.names
+    assert back.relative_deviation == pytest.approx(verdict.relative_deviation)
+    assert back.message == verdict.message
+    values = dict(diagnostic_values(verdict, extra={'age': '1.0'}))
+    assert values['verdict'] == verdict.level_name
+    dev = (RESULT.natural_frequencies[0] - REFERENCE_MODEL.natural_frequencies[0]) / \
+        REFERENCE_MODEL.natural_frequencies[0]
+    assert values['omega_1'].startswith(f'{100 * dev:+.3f} %')
+    assert values['age'] == '1.0'
+    stale = DriftMonitor().stale(window_index=5, age=None)
+    assert dict(diagnostic_values(stale))['k0'] == 'n/a'
+    msg.level = 9
+    with pytest.raises(InvalidDataError):
+        verdict_from_msg(msg)

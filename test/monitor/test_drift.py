@@ -1,0 +1,259 @@
+"""Drift verdicts against the reference model (galvo_sysid.monitor.drift)."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.monitor.drift import (
+    DEFAULT_NOISE_FLOOR,
+    DEFAULT_TOLERANCES,
+    ERROR,
+    OK,
+    STALE,
+    WARN,
+    DriftMonitor,
+    parameter_names,
+)
+
+NAMES = parameter_names(3)
+
+
+@dataclass(frozen=True)
+class FakeResult:
+    target_angle: float
+    k0: float
+    residues: tuple[float, ...]
+    natural_frequencies: tuple[float, ...]
+    damping_ratios: tuple[float, ...]
+    k0_std: float
+    residues_std: tuple[float, ...]
+    natural_frequencies_std: tuple[float, ...]
+    damping_ratios_std: tuple[float, ...]
+    fit_percent: float = 99.9
+
+
+def result(rel: dict[str, float] | None = None, *, rel_std: float | dict[str, float] = 1e-4,
+           fit: float = 99.9, angle: float = 0.3) -> FakeResult:
+    """A result whose parameters deviate from Table I by ``rel`` (relative)."""
+    ref = REFERENCE_MODEL.parameters()
+    rel = rel or {}
+    v = {n: ref[n] * (1 + rel.get(n, 0.0)) for n in NAMES}
+    s = {n: abs(ref[n]) * (rel_std if isinstance(rel_std, float) else rel_std.get(n, 1e-4))
+         for n in NAMES}
+    return FakeResult(
+        target_angle=angle, k0=v['k0'], residues=(v['k1'], v['k2'], v['k3']),
+        natural_frequencies=(v['omega_1'], v['omega_2'], v['omega_3']),
+        damping_ratios=(v['zeta_1'], v['zeta_2'], v['zeta_3']), k0_std=s['k0'],
+        residues_std=(s['k1'], s['k2'], s['k3']),
+        natural_frequencies_std=(s['omega_1'], s['omega_2'], s['omega_3']),
+        damping_ratios_std=(s['zeta_1'], s['zeta_2'], s['zeta_3']), fit_percent=fit)
+
+
+def test_reference_itself_is_ok() -> None:
+    v = DriftMonitor().assess(result(), window_index=4)
+    assert v.level == OK
+    assert v.window_index == 4
+    assert v.names == NAMES
+    assert v.relative_deviation == pytest.approx([0.0] * 10, abs=1e-12)
+    assert v.tolerance == tuple(DEFAULT_TOLERANCES[n] for n in NAMES)
+    assert v.message.startswith('OK')
+    assert v.flagged == ()
+
+
+def test_deviation_beyond_tolerance_is_error() -> None:
+    v = DriftMonitor().assess(result({'omega_1': -0.02}), window_index=0)
+    assert v.level == ERROR
+    assert v.flagged == ('omega_1',)
+    assert v.relative_deviation[NAMES.index('omega_1')] == pytest.approx(-0.02)
+    assert 'omega_1 -2.00 %' in v.message
+
+
+def test_deviation_past_warn_fraction_is_warn() -> None:
+    v = DriftMonitor().assess(result({'k2': 0.06}), window_index=0)
+    assert v.level == WARN
+    assert v.flagged == ('k2',)
+
+
+def test_deviation_inside_the_estimates_own_noise_is_not_drift() -> None:
+    # 2 % off, but identified with a 1 % standard deviation: within 3 sigma
+    v = DriftMonitor().assess(result({'omega_1': 0.02}, rel_std={'omega_1': 0.01}),
+                              window_index=0)
+    assert v.level == OK
+    # the same deviation identified precisely is drift
+    v = DriftMonitor().assess(result({'omega_1': 0.02}, rel_std={'omega_1': 0.001}),
+                              window_index=0)
+    assert v.level == ERROR
+
+
+def test_zeta3_has_a_wide_tolerance() -> None:
+    assert DEFAULT_TOLERANCES['zeta_3'] >= 10 * DEFAULT_TOLERANCES['zeta_1'] / 3
+    v = DriftMonitor().assess(result({'zeta_3': 0.4}), window_index=0)
+    assert v.level == OK
+
+
+def test_custom_tolerances_and_reference() -> None:
+    assert DriftMonitor().assess(result({'k0': 0.01}), window_index=0).level == OK
+    mon = DriftMonitor(tolerances={'k0': 0.005})
+    assert mon.assess(result({'k0': 0.01}), window_index=0).level == ERROR
+    with pytest.raises(ConfigurationError, match='unknown'):
+        DriftMonitor(tolerances={'omega_9': 0.1})
+    with pytest.raises(ConfigurationError, match='> 0'):
+        DriftMonitor(tolerances={'k1': 0.0})
+    with pytest.raises(ConfigurationError):
+        DriftMonitor(warn_fraction=1.5)
+    with pytest.raises(ConfigurationError):
+        DriftMonitor(trend_windows=4, trend_min_windows=5)
+
+
+def drifting_sequence(rate: float, windows: int, seed: int = 0) -> list[FakeResult]:
+    """omega_1 moving ``rate`` (relative) per window; the parameters scatter as measured on
+    the simulator (the noise floors are 1.5 times that), reported std alike."""
+    rng = np.random.default_rng(seed)
+    scatter = {n: DEFAULT_NOISE_FLOOR[n] / 1.5 for n in NAMES}
+    out = []
+    for i in range(windows):
+        rel = {n: rng.normal(0, scatter[n]) for n in NAMES}
+        rel['omega_1'] += rate * (i + 1)
+        angle = 0.03 * (1 + i % 19) * (1 if i % 2 == 0 else -1)
+        out.append(result(rel, rel_std=scatter, angle=angle))
+    return out
+
+
+@pytest.mark.parametrize('warn_fraction', [0.5, 0.95])
+@pytest.mark.parametrize('seed', range(5))
+def test_drift_building_up_is_flagged_before_the_tolerance_is_crossed(
+        seed: int, warn_fraction: float) -> None:
+    # with warn_fraction 0.95 only the trend test can speak before the tolerance is crossed
+    mon = DriftMonitor(warn_fraction=warn_fraction)
+    tol = DEFAULT_TOLERANCES['omega_1']
+    first_flag = None
+    for i, r in enumerate(drifting_sequence(-0.002, 8, seed)):
+        v = mon.assess(r, window_index=i)
+        dev = v.relative_deviation[NAMES.index('omega_1')]
+        if 'omega_1' in v.flagged and first_flag is None:
+            first_flag = i
+            assert abs(dev) < tol, 'flagged only once the tolerance was crossed'
+            assert v.level == WARN
+            if warn_fraction > 0.9:
+                assert 'omega_1 drifting' in v.message
+            assert v.trend_per_window[NAMES.index('omega_1')] == pytest.approx(-0.002, rel=0.5)
+    assert first_flag is not None
+    assert first_flag <= 3  # 0.2 % per window against a 1 % tolerance
+
+
+def test_healthy_plant_raises_no_trend_alarm() -> None:
+    mon = DriftMonitor()
+    levels = [mon.assess(r, window_index=i).level
+              for i, r in enumerate(drifting_sequence(0.0, 300, seed=11))]
+    assert levels.count(OK) >= 298
+    assert ERROR not in levels
+
+
+def test_angle_dependent_bias_is_not_a_trend() -> None:
+    # k0 identified exactly at small angles and up to 0.45 tolerance low at large ones, the
+    # angles swept in order: a saw-tooth in the deviation, not a drift
+    mon = DriftMonitor()
+    flagged = []
+    for i in range(60):
+        frac = (i % 10) / 9
+        bias = -0.45 * DEFAULT_TOLERANCES['k0'] * frac
+        v = mon.assess(result({'k0': bias}, rel_std=0.003), window_index=i)
+        flagged += list(v.flagged)
+    assert 'k0' not in flagged
+
+
+def test_poor_fit_warns_and_stays_out_of_the_trend() -> None:
+    mon = DriftMonitor(min_fit_percent=95.0)
+    v = mon.assess(result(fit=60.0), window_index=0)
+    assert v.level == WARN
+    assert 'poor fit' in v.message
+    assert all(math.isnan(x) for x in v.trend_per_window)
+
+
+def test_wrong_mode_count_or_nan_is_an_error_verdict() -> None:
+    r = result()
+    two = FakeResult(r.target_angle, r.k0, r.residues[:2], r.natural_frequencies[:2],
+                     r.damping_ratios[:2], r.k0_std, r.residues_std[:2],
+                     r.natural_frequencies_std[:2], r.damping_ratios_std[:2])
+    v = DriftMonitor().assess(two, window_index=1)
+    assert v.level == ERROR
+    assert '2 resonant modes' in v.message
+    bad = FakeResult(r.target_angle, math.nan, *[getattr(r, f) for f in (
+        'residues', 'natural_frequencies', 'damping_ratios', 'k0_std', 'residues_std',
+        'natural_frequencies_std', 'damping_ratios_std')])
+    assert DriftMonitor().assess(bad, window_index=2).level == ERROR
+
+
+def test_stale_and_json() -> None:
+    mon = DriftMonitor()
+    s = mon.stale(window_index=3, age=12.5)
+    assert s.level == STALE
+    assert s.level_name == 'STALE'
+    assert '12.5 s' in s.message
+    d = mon.assess(result({'omega_2': 0.03}), window_index=9).to_dict()
+    text = json.dumps(d, allow_nan=False)
+    back = json.loads(text)
+    assert back['level'] == 'ERROR'
+    assert back['deviations']['omega_2'] == pytest.approx(0.03)
+    assert back['tolerances']['zeta_3'] == DEFAULT_TOLERANCES['zeta_3']
+    json.dumps(s.to_dict(), allow_nan=False)
+
+
+def test_a_step_and_its_recovery_are_no_trend_and_a_later_drift_still_is() -> None:
+    # the demo's sequence: healthy, omega_1 steps -2 % (ERROR), back to nominal, then drifting
+    mon = DriftMonitor(warn_fraction=0.95)
+    seq = drifting_sequence(0.0, 30, seed=4)
+    deviations = [0.0] * 6 + [-0.02] * 6 + [0.0] * 4 + [-0.002 * k for k in range(1, 15)]
+    first_trend = None
+    for i, (r, d) in enumerate(zip(seq, deviations, strict=True)):
+        w = r.natural_frequencies
+        r = FakeResult(r.target_angle, r.k0, r.residues, (w[0] * (1 + d), *w[1:]),
+                       *[getattr(r, f) for f in ('damping_ratios', 'k0_std', 'residues_std',
+                                                 'natural_frequencies_std',
+                                                 'damping_ratios_std')])
+        v = mon.assess(r, window_index=i)
+        if 6 <= i < 12:
+            assert v.level == ERROR
+        elif i < 16:
+            assert v.level == OK, (i, v.message)  # no trend faked by the step's recovery
+        elif first_trend is None and 'omega_1 drifting' in v.message:
+            first_trend = i
+    assert first_trend is not None
+    assert abs(deviations[first_trend]) < DEFAULT_TOLERANCES['omega_1']
+
+
+def test_monitor_from_parameters_is_the_watchdog_nodes() -> None:
+    import inspect
+
+    from galvo_sysid.monitor.drift import MONITOR_PARAMETERS, monitor_from_parameters
+    from galvo_sysid.nodes import watchdog_node
+
+    declared = {p.name: p.default for p in watchdog_node.PARAMETERS}
+    # every option is a watchdog parameter and a DriftMonitor argument of the same name
+    assert set(MONITOR_PARAMETERS) <= set(declared)
+    assert set(MONITOR_PARAMETERS) <= set(inspect.signature(DriftMonitor).parameters)
+    nodes = monitor_from_parameters(declared)
+    plain = DriftMonitor()
+    for name in ('reference', 'tolerances', 'noise_floor', *MONITOR_PARAMETERS):
+        assert getattr(nodes, name) == getattr(plain, name), name
+    # values reach the monitor (step_fraction too: it was once left out offline)
+    custom = monitor_from_parameters({**declared, 'step_fraction': 0.8, 'n_sigma': 2.0,
+                                      'tolerances.omega_1': 0.02, 'reference.k0': 3.0e6,
+                                      'hardware_id': 'ignored'})
+    assert (custom.step_fraction, custom.n_sigma) == (0.8, 2.0)
+    assert custom.tolerances['omega_1'] == 0.02
+    assert custom.reference.k0 == 3.0e6
+    assert monitor_from_parameters({}).reference == REFERENCE_MODEL  # missing: defaults
+    with pytest.raises(ConfigurationError, match='bad watchdog parameter'):
+        monitor_from_parameters({'reference.k0': 'heavy'})
+    with pytest.raises(ConfigurationError, match='tolerance'):
+        monitor_from_parameters({'tolerances.k0': -1.0})
+    with pytest.raises(ConfigurationError, match='unknown'):
+        monitor_from_parameters({'tolerances.k9': 0.1})

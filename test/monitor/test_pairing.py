@@ -1,0 +1,342 @@
+"""Pairing of move halves and windows per target angle (galvo_sysid.monitor.pairing)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.monitor.pairing import MoveHalf, MoveWindower, summarize_rejections
+
+N = 64
+DT = 1e-5
+MOVE_TIME = 0.006
+
+
+def halves(move_id: int, angle: float = 0.3, *, stamp: float | None = None, n: int = N,
+           period: float = DT) -> tuple[MoveHalf, MoveHalf]:
+    t = move_id * MOVE_TIME if stamp is None else stamp
+    base = np.arange(n, dtype=float)
+    cur = MoveHalf.create('current', move_id=move_id, target_angle=angle, sample_period=period,
+                          stamp=t, data=base + 1000.0 * move_id)
+    enc = MoveHalf.create('encoder', move_id=move_id, target_angle=angle, sample_period=period,
+                          stamp=t, data=-base - 1000.0 * move_id)
+    return cur, enc
+
+
+def feed(w: MoveWindower, items: list[MoveHalf]) -> list:
+    out = []
+    for h in items:
+        out.extend(w.add(h))
+    return out
+
+
+def test_window_completes_with_paired_records_in_order() -> None:
+    w = MoveWindower(window_size=5)
+    items = []
+    for i in range(5):
+        c, e = halves(i)
+        items += [e, c] if i % 2 else [c, e]  # either half may come first
+    windows = feed(w, items)
+    assert len(windows) == 1
+    win = windows[0]
+    assert win.index == 0
+    assert win.moves == 5
+    assert win.move_ids == (0, 1, 2, 3, 4)
+    assert win.current.shape == (5, N)
+    assert win.encoder.shape == (5, N)
+    np.testing.assert_array_equal(win.current[3], np.arange(N) + 3000.0)
+    np.testing.assert_array_equal(win.encoder[3], -np.arange(N) - 3000.0)
+    assert win.first_stamp == pytest.approx(0.0)
+    assert win.last_stamp == pytest.approx(4 * MOVE_TIME)
+    assert win.target_angle == pytest.approx(0.3)
+    assert not win.partial
+    assert w.pending == 0
+    assert w.open_windows == 0
+    assert w.buffered_samples == 0
+    assert w.pop_rejections() == []
+
+
+def test_signed_angles_fill_separate_windows() -> None:
+    w = MoveWindower(window_size=3)
+    items = []
+    for i in range(6):
+        items += halves(i, 0.3 if i % 2 == 0 else -0.3)
+    windows = feed(w, items)
+    assert [(x.index, x.target_angle, x.move_ids) for x in windows] == [
+        (0, 0.3, (0, 2, 4)), (1, -0.3, (1, 3, 5))]
+
+
+@pytest.mark.parametrize('bad_first', [True, False])
+def test_nan_move_is_rejected_once_and_window_still_completes(bad_first: bool) -> None:
+    w = MoveWindower(window_size=4)
+    items = []
+    for i in range(5):
+        c, e = halves(i)
+        if i == 2:
+            e = MoveHalf.create('encoder', move_id=2, target_angle=0.3, sample_period=DT,
+                                stamp=e.stamp, data=np.where(np.arange(N) == 7, np.nan, 1.0))
+            items += [e, c] if bad_first else [c, e]
+        else:
+            items += [c, e]
+    windows = feed(w, items)
+    assert len(windows) == 1
+    assert windows[0].move_ids == (0, 1, 3, 4)
+    rej = w.pop_rejections()
+    assert [(r.move_id, r.reason) for r in rej] == [(2, 'NaN or Inf in encoder')]
+    assert w.moves_rejected == 1
+
+
+def test_bad_halves_each_say_why() -> None:
+    w = MoveWindower(window_size=10, samples=N, max_samples=1000)
+    base = {'sample_period': DT, 'stamp': 0.0}
+    bad = [
+        MoveHalf.create('current', move_id=1, target_angle=0.0, data=np.ones(N), **base),
+        MoveHalf.create('current', move_id=2, target_angle=0.3, data=np.ones(N),
+                        sample_period=0.0, stamp=0.0),
+        MoveHalf.create('current', move_id=3, target_angle=0.3, data=np.ones(N),
+                        sample_period=-1e-5, stamp=0.0),
+        MoveHalf.create('current', move_id=4, target_angle=0.3, data=np.ones(0), **base),
+        MoveHalf.create('current', move_id=5, target_angle=0.3, data=np.ones(5000), **base),
+        MoveHalf.create('current', move_id=6, target_angle=0.3, data=np.ones(N - 1), **base),
+        MoveHalf.create('current', move_id=7, target_angle=0.3, data=np.full(N, np.inf), **base),
+        MoveHalf.create('current', move_id=8, target_angle=math.nan, data=np.ones(N), **base),
+        MoveHalf.create('velocity', move_id=9, target_angle=0.3, data=np.ones(N), **base),
+        MoveHalf.create('current', move_id=10, target_angle=0.3, data=np.ones((2, N)), **base),
+        MoveHalf.create('current', move_id=11, target_angle=0.3, data=np.ones(N),
+                        sample_period=DT, stamp=math.nan),
+    ]
+    feed(w, bad)
+    reasons = {r.move_id: r.reason for r in w.pop_rejections()}
+    assert set(reasons) == set(range(1, 12))
+    assert reasons[1] == 'zero target angle'
+    assert 'sample period' in reasons[2]
+    assert 'sample period' in reasons[3]
+    assert 'empty' in reasons[4]
+    assert 'too long' in reasons[5]
+    assert 'expected 64' in reasons[6]
+    assert 'NaN or Inf' in reasons[7]
+    assert 'target angle' in reasons[8]
+    assert 'unknown signal' in reasons[9]
+    assert 'one-dimensional' in reasons[10]
+    assert 'stamp' in reasons[11]
+    assert w.pending == 0
+
+
+def test_current_and_encoder_of_different_lengths() -> None:
+    w = MoveWindower(window_size=2)
+    c, _ = halves(0)
+    _, e = halves(0, n=N + 3)
+    feed(w, [c, e])
+    (r,) = w.pop_rejections()
+    assert 'lengths differ' in r.reason
+    # the window fixes N from its first move; a later move of another length is set aside
+    feed(w, [*halves(1), *halves(2, n=2 * N)])
+    (r,) = w.pop_rejections()
+    assert r.move_id == 2
+    assert 'samples' in r.reason
+    assert len(feed(w, list(halves(3)))) == 1
+
+
+def test_duplicate_move_id() -> None:
+    w = MoveWindower(window_size=3)
+    c0, e0 = halves(0)
+    windows = feed(w, [c0, c0, e0, e0, *halves(1), *halves(2)])
+    assert len(windows) == 1
+    assert windows[0].move_ids == (0, 1, 2)  # the move itself was used once
+    rej = w.pop_rejections()
+    assert [r.move_id for r in rej] == [0, 0]
+    assert all('duplicate move_id' in r.reason for r in rej)
+
+
+def test_unpaired_half_expires_by_stamp_not_arrival() -> None:
+    w = MoveWindower(window_size=50, pair_timeout=0.1)
+    c0, _ = halves(0, stamp=0.0)
+    feed(w, [c0])
+    feed(w, list(halves(1, stamp=0.05)))
+    assert w.pop_rejections() == []  # within the timeout
+    feed(w, list(halves(2, stamp=0.2)))
+    (r,) = w.pop_rejections()
+    assert r.move_id == 0
+    assert 'unpaired after 0.1 s' in r.reason
+    assert 'encoder' in r.reason
+    assert w.pending == 0
+    w.expire(10.0)
+    assert w.pop_rejections() == []
+
+
+def test_time_jumping_back_resets_buffers() -> None:
+    w = MoveWindower(window_size=4)
+    feed(w, [*halves(0, stamp=10.0), *halves(1, stamp=10.006), *halves(2, stamp=10.012)])
+    c3, _ = halves(3, stamp=10.018)
+    feed(w, [c3])
+    assert w.open_windows == 1
+    # replay loops back to the start of the bag: same ids and stamps again
+    windows = feed(w, list(halves(0, stamp=0.5)))
+    assert windows == []
+    assert w.resets == 1
+    rej = w.pop_rejections()
+    assert sorted(r.move_id for r in rej) == [0, 1, 2, 3]
+    assert all('time jumped back' in r.reason for r in rej)
+    # afterwards, moves with the same ids are accepted again and no old move mixes in
+    windows = feed(w, [h for i in range(1, 4) for h in halves(i, stamp=0.5 + 0.006 * i)])
+    assert len(windows) == 1
+    assert windows[0].first_stamp == pytest.approx(0.5)
+    assert windows[0].last_stamp == pytest.approx(0.518)
+
+
+def test_reused_move_id_long_after_is_a_new_move() -> None:
+    w = MoveWindower(window_size=2, pair_timeout=0.5)
+    feed(w, [*halves(0, stamp=0.0), *halves(1, stamp=0.01)])
+    windows = feed(w, [*halves(0, stamp=5.0), *halves(1, stamp=5.01)])
+    assert len(windows) == 1
+    assert w.pop_rejections() == []
+
+
+def test_memory_bounded_under_many_distinct_angles() -> None:
+    w = MoveWindower(window_size=100, max_windows=16)
+    for i in range(5000):
+        feed(w, list(halves(i, angle=0.001 * (i + 1))))
+        assert w.open_windows <= 16
+    rej = w.pop_rejections()
+    assert len(rej) == 5000 - 16
+    assert all('window evicted' in r.reason for r in rej)
+    assert w.moves_accepted == 16
+
+
+def test_memory_bounded_when_encoder_never_comes() -> None:
+    w = MoveWindower(window_size=100, max_pending=50, pair_timeout=1e9)
+    for i in range(1000):
+        c, _ = halves(i)
+        w.add(c)
+        assert w.pending <= 50
+    rej = w.pop_rejections()
+    assert len(rej) == 950
+    assert 'evicted' in rej[0].reason
+
+
+def test_memory_bounded_by_buffered_samples() -> None:
+    w = MoveWindower(window_size=100, max_buffered_samples=2 * 100 * N * 3 // 2,
+                     max_windows=64)
+    for i in range(400):
+        feed(w, list(halves(i, angle=0.3 * (1 + i % 4))))
+        assert w.buffered_samples <= 2 * 100 * N * 3 // 2
+    assert any('buffered samples' in r.reason for r in w.pop_rejections())
+
+
+def test_flush_hands_out_partial_windows_and_rejects_the_rest() -> None:
+    w = MoveWindower(window_size=100)
+    items = [h for i in range(10) for h in halves(i, 0.3)]
+    items += [h for i in range(10, 12) for h in halves(i, 0.6)]
+    items.append(halves(12, 0.9)[0])
+    feed(w, items)
+    windows = w.flush(min_moves=5)
+    assert [(x.target_angle, x.moves, x.partial) for x in windows] == [(0.3, 10, True)]
+    rej = w.pop_rejections()
+    assert sorted(r.move_id for r in rej) == [10, 11, 12]
+    assert w.open_windows == 0
+    assert w.pending == 0
+
+
+@pytest.mark.parametrize('kwargs', [
+    {'window_size': 1}, {'window_size': -5}, {'pair_timeout': 0.0},
+    {'pair_timeout': math.nan}, {'time_jump': -1.0}, {'samples': 10},
+    {'min_samples': 0}, {'max_pending': 0}, {'max_buffered_samples': 10},
+])
+def test_bad_configuration(kwargs: dict) -> None:
+    with pytest.raises(ConfigurationError):
+        MoveWindower(**kwargs)
+
+
+def test_summarize_rejections_groups_by_reason() -> None:
+    w = MoveWindower(window_size=10)
+    for i in range(8):
+        c, e = halves(i)
+        e = MoveHalf.create('encoder', move_id=i, target_angle=0.3, sample_period=DT,
+                            stamp=e.stamp, data=np.full(N, np.nan))
+        feed(w, [c, e])
+    feed(w, [MoveHalf.create('current', move_id=99, target_angle=0.0, sample_period=DT,
+                             stamp=1.0, data=np.ones(N))])
+    lines = summarize_rejections(w.pop_rejections())
+    assert lines == ['8 moves set aside (ids 0, 1, 2, 3, 4, ... 7; 0.3 deg): NaN or Inf in encoder',
+                     '1 move set aside (id 99; 0 deg): zero target angle']
+
+
+float_values = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
+                         st.sampled_from([0.0, 0.3, -0.3, 1e-5, -1e-5]))
+arrays = st.one_of(
+    st.integers(0, 80).map(lambda n: np.linspace(0.0, 1.0, n)),
+    st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=70).map(np.array),
+    st.just(np.zeros((3, 40))),
+)
+half_strategy = st.builds(
+    MoveHalf.create, st.sampled_from(['current', 'encoder', 'current', 'encoder', 'x']),
+    move_id=st.integers(-3, 12), target_angle=float_values, sample_period=float_values,
+    stamp=st.one_of(st.floats(-10, 10), st.just(math.nan), st.just(math.inf)), data=arrays)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(half_strategy, max_size=60))
+def test_arbitrary_halves_never_raise_and_stay_bounded(items: list[MoveHalf]) -> None:
+    w = MoveWindower(window_size=2, min_samples=4, max_samples=64, max_pending=5, max_windows=3,
+                     max_buffered_samples=2 * 2 * 64 * 3)
+    for h in items:
+        for win in w.add(h):
+            assert win.current.shape == win.encoder.shape
+            assert win.current.shape[0] == 2
+            assert np.isfinite(win.current).all()
+            assert np.isfinite(win.encoder).all()
+            assert win.sample_period > 0
+            assert abs(win.target_angle) > 0
+        assert w.pending <= 5
+        assert w.open_windows <= 3
+        assert w.buffered_samples <= 2 * 2 * 64 * 3
+    for r in w.pop_rejections():
+        assert isinstance(r.reason, str)
+        assert r.reason
+    w.flush(min_moves=1)
+    summarize_rejections(w.pop_rejections())
+
+
+def test_lost_messages_windows_complete_from_the_moves_that_arrived() -> None:
+    # a best-effort link loses 10 % of the messages: every move missing a half is set aside
+    # once (unpaired), the windows fill up with the complete moves
+    rng = np.random.default_rng(7)
+    w = MoveWindower(window_size=20, pair_timeout=0.05)
+    windows = []
+    lost = set()
+    for i in range(120):
+        for h in halves(i):
+            if rng.random() < 0.1:
+                lost.add(i)
+                continue
+            windows += w.add(h)
+    w.expire(1e9)
+    rej = w.pop_rejections()
+    assert {r.move_id for r in rej} <= lost
+    assert all('unpaired' in r.reason for r in rej)
+    used = [m for win in windows for m in win.move_ids]
+    assert not set(used) & lost
+    assert len(used) == len(set(used))
+    assert all(win.moves == 20 for win in windows)
+    complete = 120 - len(lost)
+    assert len(windows) == complete // 20  # one angle: one window per 20 complete moves
+    assert w.moves_accepted == complete
+
+
+def test_windower_parameters_are_the_sysid_nodes() -> None:
+    import inspect
+
+    from galvo_sysid.monitor.pairing import WINDOWER_PARAMETERS
+    from galvo_sysid.nodes import sysid_node
+
+    declared = {p.name: p.default for p in sysid_node.PARAMETERS}
+    assert set(WINDOWER_PARAMETERS) <= set(declared)
+    assert set(WINDOWER_PARAMETERS) <= set(inspect.signature(MoveWindower).parameters)
+    defaults = MoveWindower()
+    for name in WINDOWER_PARAMETERS:
+        assert getattr(defaults, name) == declared[name], name
