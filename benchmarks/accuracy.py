@@ -56,7 +56,7 @@ from galvo_sysid.ident.identify import (
     identify_window,
     pool_results,
 )
-from galvo_sysid.model.modal import PAPER_ANGLES, PAPER_TABLE_II, PSI, REFERENCE_MODEL, TAU
+from galvo_sysid.model import PAPER_ANGLES, PAPER_TABLE_II, PSI, REFERENCE_MODEL, TAU
 
 NAMES = tuple(REFERENCE_MODEL.parameters())
 TRUTH = REFERENCE_MODEL.parameters()

@@ -33,7 +33,7 @@ for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
     os.environ.setdefault(_var, '1')
 
 from galvo_sysid.discrepancy.workflow import MoveSet, find_discrepancy  # noqa: E402
-from galvo_sysid.model.modal import PSI, TAU  # noqa: E402
+from galvo_sysid.model import PSI, TAU  # noqa: E402
 
 CASES: dict[str, list[tuple[str, dict[str, float]]]] = {
     'input_delay': [('+0.3 tau', {'delay': 1.9 * TAU}), ('+1 tau', {'delay': 2.6 * TAU})],
@@ -56,13 +56,12 @@ ANGLES = (0.1 * PSI, PSI, 10 * PSI)
 def simulate(effect: str | None, params: dict[str, float], *, seed: int,
              moves_per_angle: int) -> MoveSet:
     """Moves of the simulated scanner with one effect (or none)."""
-    from galvo_sysid.model.effects import PlantEffects
+    from galvo_sysid.model import PAPER_MODEL
     from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig
 
     cfg = SimulatorConfig()
     if effect is not None:
-        effects = PlantEffects().with_effect(effect, params)
-        cfg = replace(cfg, plant=replace(cfg.plant, effects=effects))
+        cfg = replace(cfg, plant=PAPER_MODEL.with_effect(effect, params))
     sim = GalvoSimulator(config=cfg, seed=seed)
     return MoveSet.from_moves(sim.moves(angles=list(ANGLES), moves_per_angle=moves_per_angle))
 

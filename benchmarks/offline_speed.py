@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from galvo_sysid.field.simulate import simulate_bag
-from galvo_sysid.model.modal import PAPER_ANGLES
+from galvo_sysid.model import PAPER_ANGLES
 
 CLI = str(Path(sys.executable).parent / 'galvo-sysid')
 

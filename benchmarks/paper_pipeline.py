@@ -41,7 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from galvo_sysid.errors import GalvoSysidError
 from galvo_sysid.ident.decompose import arx_to_continuous, continuous_modal_decomposition
 from galvo_sysid.ident.paper import paper_pipeline
-from galvo_sysid.model.modal import PAPER_ANGLES, PAPER_TABLE_II, PSI, REFERENCE_MODEL, TAU
+from galvo_sysid.model import PAPER_ANGLES, PAPER_TABLE_II, PSI, REFERENCE_MODEL, TAU
 from galvo_sysid.sim.simulator import simulate_window
 
 VARIANTS: dict[str, dict[str, Any]] = {

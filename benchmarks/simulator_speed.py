@@ -14,8 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from galvo_sysid.model.effects import Drift, PlantEffects, PlantSpec
-from galvo_sysid.model.modal import PAPER_ANGLES
+from galvo_sysid.model import PAPER_ANGLES, PAPER_MODEL, Drift, PlantModel
 from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig, simulate_window
 
 
@@ -59,8 +58,18 @@ def main() -> None:
     def cfg(**kwargs: object) -> SimulatorConfig:
         return SimulatorConfig(**kwargs)  # type: ignore[arg-type]
 
-    def effects(**kwargs: object) -> PlantSpec:
-        return PlantSpec(effects=PlantEffects(**kwargs))  # type: ignore[arg-type]
+    def effects(**kwargs: float) -> PlantModel:
+        names = {'friction_current': ('coulomb_friction', 'friction_current'),
+                 'gain_ratio': ('gain_change', 'gain_ratio'),
+                 'current_limit': ('current_saturation', 'current_limit'),
+                 'pivot_frequency': ('pivot_stiffness', 'natural_frequency')}
+        model = PAPER_MODEL
+        for key, value in kwargs.items():
+            if key == 'dead_time':
+                model = model.with_effect('input_delay', {'delay': model.base_delay + value})
+            else:
+                model = model.with_effect(names[key][0], {names[key][1]: value})
+        return model
 
     rows = [
         ('fast', f'nominal, 19 angles x {fast_n} (a bag)',

@@ -12,6 +12,7 @@ __all__ = [
     'GalvoSysidError',
     'IdentificationError',
     'InvalidDataError',
+    'ModelMismatchError',
 ]
 
 
@@ -29,3 +30,13 @@ class IdentificationError(GalvoSysidError):
 
 class ConfigurationError(GalvoSysidError, ValueError):
     """A parameter or model description is out of range or inconsistent."""
+
+
+class ModelMismatchError(IdentificationError):
+    """The data do not match the configured plant model.
+
+    Raised when the records have another sample period than the model, a mode of the fit
+    ends at its band's edge, or the residual is far above the noise between the bands: the
+    scanner is not the one the model describes (or has changed beyond its bands). Callers say
+    so plainly (and suggest ``galvo-sysid commission``) instead of reporting parameter drift.
+    """

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from galvo_sysid.model.modal import REFERENCE_MODEL, TAU, InputDynamics, ModalModel, simulate
+from galvo_sysid.model import REFERENCE_MODEL, TAU, InputDynamics, ModalModel, simulate
 
 N_SAMPLES = 512
 QUANTUM = 4e-5  # encoder resolution [deg]

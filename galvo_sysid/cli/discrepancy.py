@@ -84,7 +84,7 @@ def _finite(text: str) -> float:
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``discrepancy`` subcommand to an argparse subparsers object."""
     from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD
-    from galvo_sysid.model.io import EFFECT_NAMES
+    from galvo_sysid.model.effects import EFFECT_NAMES
 
     p: argparse.ArgumentParser = subparsers.add_parser(
         'discrepancy', formatter_class=_Formatter, description=_DESCRIPTION, epilog=_EPILOG,
@@ -129,9 +129,9 @@ def run(args: argparse.Namespace) -> int:
     """
     from galvo_sysid.discrepancy.report import format_result, json_safe, write_report
     from galvo_sysid.discrepancy.workflow import find_discrepancy, read_moves
-    from galvo_sysid.model.io import NOMINAL_MODEL, load_model, save_model
+    from galvo_sysid.model.files import load_model, save_model
 
-    model = load_model(args.model) if args.model else NOMINAL_MODEL
+    model = load_model(args.model)
     moves, rejected = read_moves(args.bag, namespace=args.namespace,
                                  max_moves_per_angle=args.max_moves_per_angle)
     verbose = not args.json and sys.stderr.isatty()
@@ -172,7 +172,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run ``discrepancy`` alone (``python -m galvo_sysid.cli.discrepancy``)."""
     from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD
     from galvo_sysid.errors import GalvoSysidError
-    from galvo_sysid.model.io import EFFECT_NAMES
+    from galvo_sysid.model.effects import EFFECT_NAMES
 
     parser = argparse.ArgumentParser(prog='galvo-sysid discrepancy', description=_DESCRIPTION,
                                      epilog=_EPILOG, formatter_class=_Formatter)

@@ -385,7 +385,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _angles(items: Sequence[str]) -> list[float]:
-    from galvo_sysid.model.modal import PAPER_ANGLES
+    from galvo_sysid.model import PAPER_ANGLES
 
     angles: list[float] = []
     for item in items:
@@ -472,7 +472,7 @@ def _json_safe(value: Any) -> Any:
 
 def format_identification(found: BagIdentification) -> str:
     """The readable report ``identify`` prints without ``--json``."""
-    from galvo_sysid.model.modal import REFERENCE_MODEL
+    from galvo_sysid.model import REFERENCE_MODEL
 
     ref = REFERENCE_MODEL.parameters()
     names = list(ref)

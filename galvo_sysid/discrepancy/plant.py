@@ -1,7 +1,11 @@
-"""The discrepancy workflow's own plant physics: open-loop simulation of a :class:`PlantModel`.
+"""The discrepancy workflow's open-loop plant: the moves of a plant driven by their current.
 
-Written from the physics, independently of the closed-loop simulator (which generates the
-test data), so that a test cannot pass because both share an implementation.
+The workflow compares a model with measured moves without the controller: the model
+(:class:`~galvo_sysid.model.physics.Physics`, a plant model with its effects acting) is
+driven by each move's measured current from rest at its start angle. It shares the exact
+zero-order hold and the delay split of :mod:`galvo_sysid.model.dynamics` with the simulator,
+so it is not independent of it; both are checked against python-control's own sampling in
+the tests.
 
 The plant from the DSP's current command u [A] to the encoder angle y [deg]::
 
@@ -31,100 +35,26 @@ flows before the move).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.linalg import expm
 from scipy.signal import lfilter
 
 from galvo_sysid.errors import ConfigurationError, InvalidDataError
-from galvo_sysid.model.modal import modal_state_space
+from galvo_sysid.model.dynamics import modal_state_space, split_delay, zoh
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray
 
-    from galvo_sysid.model.io import PlantModel
+    from galvo_sysid.model.physics import Physics
 
 __all__ = [
-    'Physics',
     'PlantSimulator',
     'clip_correction',
     'mode_free_responses',
     'mode_pulse_responses',
-    'physics_of',
     'resonance_pulse_response',
 ]
-
-
-@dataclass(frozen=True)
-class Physics:
-    """A plant in the workflow's own terms (see the module docs).
-
-    Attributes:
-        k0: Rigid-body gain [deg/(A s^2)].
-        pivot_frequency: Pivot spring w_p [rad/s] (0: free rigid body).
-        residues: Resonant modes' residues (model modes, then unmodelled ones).
-        natural_frequencies: Their natural frequencies [rad/s].
-        damping_ratios: Their damping ratios.
-        gain_ratio: Torque constant relative to the modal model.
-        pure_delay: Computation delay + dead time [s].
-        lag: Amplifier lag time constant [s].
-        friction_current: Coulomb friction [A] (0: none).
-        current_limit: Amplifier current limit [A] (inf: none).
-    """
-
-    k0: float
-    pivot_frequency: float
-    residues: tuple[float, ...]
-    natural_frequencies: tuple[float, ...]
-    damping_ratios: tuple[float, ...]
-    gain_ratio: float = 1.0
-    pure_delay: float = 0.0
-    lag: float = 0.0
-    friction_current: float = 0.0
-    current_limit: float = math.inf
-
-    @property
-    def linear(self) -> bool:
-        """True without friction and saturation."""
-        return self.friction_current == 0 and math.isinf(self.current_limit)
-
-    def static_gain(self) -> float:
-        """Steady angle per unit applied torque current [deg/A] (inf without a pivot)."""
-        if self.pivot_frequency <= 0:
-            return math.inf
-        return self.k0 / self.pivot_frequency**2 + sum(
-            k / w**2 for k, w in zip(self.residues, self.natural_frequencies, strict=True))
-
-
-def physics_of(model: PlantModel) -> Physics:
-    """Interpret a :class:`~galvo_sysid.model.io.PlantModel` (its effects included)."""
-    m, d = model.modal, model.dynamics
-    residues = list(m.residues)
-    freqs = list(m.natural_frequencies)
-    damps = list(m.damping_ratios)
-    pivot, gain, friction, limit = 0.0, 1.0, 0.0, math.inf
-    for e in model.effects:
-        p = e.params()
-        if e.name == 'unmodeled_resonance':
-            residues.append(p['residue'])
-            freqs.append(p['natural_frequency'])
-            damps.append(p['damping_ratio'])
-        elif e.name == 'pivot_stiffness':
-            pivot = p['natural_frequency']
-        elif e.name == 'gain_change':
-            gain = p['gain_ratio']
-        elif e.name == 'coulomb_friction':
-            friction = p['friction_current']
-        elif e.name == 'current_saturation':
-            limit = p['current_limit']
-    lag = float(d.lag_time_constant)
-    pure = max(model.equivalent_delay - lag, 0.0)
-    return Physics(k0=m.k0, pivot_frequency=pivot, residues=tuple(residues),
-                   natural_frequencies=tuple(freqs), damping_ratios=tuple(damps),
-                   gain_ratio=gain, pure_delay=pure, lag=lag, friction_current=friction,
-                   current_limit=limit)
 
 
 class _Amplifier:
@@ -138,16 +68,11 @@ class _Amplifier:
 
     def __init__(self, physics: Physics, sample_period: float, substeps: int) -> None:
         t = sample_period
-        whole_f, frac = divmod(physics.pure_delay / t, 1.0)
-        whole = round(whole_f)
-        if frac > 1 - 1e-9:
-            whole, frac = whole + 1, 0.0
-        elif frac < 1e-9:
-            frac = 0.0
+        whole, frac = split_delay(physics.pure_delay, t)
         self.whole = whole
         split = frac * t
         mids = np.asarray((np.arange(substeps) + 0.5) * (t / substeps), dtype=np.float64)
-        lag = physics.lag
+        lag = physics.lag_time_constant
         self.lag = lag
         if lag > 0:
             def coeffs(tt: NDArray[np.float64]) -> tuple[
@@ -214,23 +139,11 @@ def resonance_pulse_response(physics: Physics, *, sample_period: float, length: 
     if not physics.residues:
         return np.zeros(length)
     kw = ({'gain': 1.0, 'lag': 0.0, 'delay': 0.0} if applied else
-          {'gain': physics.gain_ratio, 'lag': physics.lag, 'delay': physics.pure_delay})
+          {'gain': physics.gain_ratio, 'lag': physics.lag_time_constant,
+           'delay': physics.pure_delay})
     h = mode_pulse_responses(physics.natural_frequencies, physics.damping_ratios,
                              sample_period=sample_period, length=length, **kw)
     return np.asarray(np.asarray(physics.residues) @ h, dtype=np.float64)
-
-
-def _zoh(a: NDArray[np.float64], b: NDArray[np.float64], t: float) -> tuple[
-        NDArray[np.float64], NDArray[np.float64]]:
-    """(e^{a t}, int_0^t e^{a s} ds b) of a constant input held for t."""
-    n = a.shape[0]
-    if t <= 0:
-        return np.eye(n), np.zeros_like(b)
-    m = np.zeros((n + b.shape[1], n + b.shape[1]))
-    m[:n, :n] = a * t
-    m[:n, n:] = b * t
-    e = expm(m)
-    return e[:n, :n], e[:n, n:]
 
 
 def _fft_length(n: int) -> int:
@@ -261,34 +174,29 @@ class PlantSimulator:
         gains = [ph.k0, *ph.residues]
         freqs = [ph.pivot_frequency, *ph.natural_frequencies]
         damps = [0.0, *ph.damping_ratios]
-        off = 1 if ph.lag > 0 else 0
+        off = 1 if ph.lag_time_constant > 0 else 0
         # drive: the mechanics' input per unit torque current
         a, b_u, drive, c = modal_state_space(gains=gains, frequencies=freqs, dampings=damps,
-                                             lag_time_constant=ph.lag,
+                                             lag_time_constant=ph.lag_time_constant,
                                              input_gain=ph.gain_ratio)
         n = a.shape[0]
         self._a, self._c, self._drive, self._off = a, c, drive, off
         t = sample_period
-        self._phi, _ = _zoh(a, b_u[:, None], t)
+        self._phi, _ = zoh(a, b_u[:, None], t)
         # Pulse response of the command: unit u[0] applied over [D, D + T).
-        whole_f, frac = divmod(ph.pure_delay / t, 1.0)
-        whole = round(whole_f)
-        if frac > 1 - 1e-9:
-            whole, frac = whole + 1, 0.0
-        elif frac < 1e-9:
-            frac = 0.0
+        whole, frac = split_delay(ph.pure_delay, t)
         self._whole, self._frac = whole, frac
         states = np.zeros((length + 2, n))
         if frac > 0:
-            phi_rest, g_part = _zoh(a, b_u[:, None], (1 - frac) * t)
-            _, g_full = _zoh(a, b_u[:, None], t)
+            phi_rest, g_part = zoh(a, b_u[:, None], (1 - frac) * t)
+            _, g_full = zoh(a, b_u[:, None], t)
             first = whole + 1
             if first < length + 2:
                 states[first] = g_part[:, 0]
             x = phi_rest @ g_full[:, 0]
             start = whole + 2
         else:
-            _, g_full = _zoh(a, b_u[:, None], t)
+            _, g_full = zoh(a, b_u[:, None], t)
             x = g_full[:, 0]
             start = whole + 1
         for k in range(start, length + 2):
@@ -306,7 +214,7 @@ class PlantSimulator:
         """(n, S): state at the sample's end from a unit current held over sub-step j."""
         if substeps not in self._held:
             h = self.sample_period / substeps
-            phi_h, g_h = _zoh(self._a, self._drive[:, None], h)
+            phi_h, g_h = zoh(self._a, self._drive[:, None], h)
             cols = []
             x = g_h[:, 0]
             for _ in range(substeps):   # sub-step S-1-j is followed by j more sub-steps

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from galvo_sysid.model.io import save_model
+from galvo_sysid.model.files import save_model
 
 if TYPE_CHECKING:
     import os

@@ -23,7 +23,7 @@ Residual, noise floor and gap:
   the data within the noise, 1 when the unexplained residual is as large as the noise floor.
   Noise alone keeps it below :attr:`Comparison.noise_gap` (about 0.28 for six groups).
 
-Naming an effect: each candidate of :data:`~galvo_sysid.model.io.EFFECT_NAMES` is fitted
+Naming an effect: each candidate of :data:`~galvo_sysid.model.effects.EFFECT_NAMES` is fitted
 (its parameters minimise J) and scored by the drop of the Bayesian information criterion,
 score = 2 (J_model - J_candidate) - p ln(n) (p fitted parameters, n real data points; the
 unmodelled resonance pays 2 ln(bins) more for picking its frequency). The best candidate is
@@ -46,22 +46,17 @@ import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
 from galvo_sysid.discrepancy.plant import (
-    Physics,
     PlantSimulator,
     clip_correction,
     mode_free_responses,
     mode_pulse_responses,
-    physics_of,
     resonance_pulse_response,
 )
 from galvo_sysid.errors import ConfigurationError, InvalidDataError
-from galvo_sysid.model.io import (
-    EFFECT_NAMES,
-    EFFECT_PARAMETERS,
-    NOMINAL_MODEL,
-    Effect,
-    PlantModel,
-)
+from galvo_sysid.model.effects import EFFECT_NAMES, EFFECTS, Effect
+from galvo_sysid.model.paper import PAPER_MODEL
+from galvo_sysid.model.physics import Physics
+from galvo_sysid.model.plant import PlantModel
 
 if TYPE_CHECKING:
     import os
@@ -411,7 +406,7 @@ class Comparison:
         history: Previous moves whose ringing is carried over (0: every record from rest).
     """
 
-    def __init__(self, moves: MoveSet, reference: PlantModel = NOMINAL_MODEL, *,
+    def __init__(self, moves: MoveSet, reference: PlantModel = PAPER_MODEL, *,
                  history: int = 2) -> None:
         groups = moves.groups()
         counts = np.array([len(idx) for _, idx in groups], dtype=np.int64)
@@ -448,7 +443,7 @@ class Comparison:
         # Noise floor: pooled scatter of the per-move spectra around their group means, with
         # each move's own random ringing of the reference's modes projected out (the same
         # projection as for the means, see ``basis``).
-        ref = physics_of(reference)
+        ref = reference.physics()
         spec = _second_difference_spectrum(moves.encoder - self.simulate(ref, per_move=True))
         free = self._ringing(ref)
         dev = [spec[idx] - spec[idx].mean(axis=0) for idx in self.index]
@@ -483,7 +478,7 @@ class Comparison:
     def _pulse(self, physics: Physics) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Resonant modes' pulse responses over the extended records: command, applied."""
         key = (physics.residues, physics.natural_frequencies, physics.damping_ratios,
-               physics.gain_ratio, physics.pure_delay, physics.lag)
+               physics.gain_ratio, physics.pure_delay, physics.lag_time_constant)
         found = self._pulses.get(key)
         if found is None:
             if len(self._pulses) > 64:
@@ -527,7 +522,7 @@ class Comparison:
         With ``per_move=False`` a linear model is simulated on the group means and a
         nonlinear one move by move and averaged.
         """
-        phys = model if isinstance(model, Physics) else physics_of(model)
+        phys = model if isinstance(model, Physics) else model.physics()
         sim = self.simulator(phys)
         if not per_move and phys.linear:
             hold = sim.holding_current(self.mean_start)[:, None]
@@ -574,9 +569,9 @@ class Comparison:
         ``ringing`` (default: the model itself; candidates of one round all use the round's
         base model, so that their costs compare).
         """
-        phys = model if isinstance(model, Physics) else physics_of(model)
+        phys = model if isinstance(model, Physics) else model.physics()
         ring = phys if ringing is None else (
-            ringing if isinstance(ringing, Physics) else physics_of(ringing))
+            ringing if isinstance(ringing, Physics) else ringing.physics())
         spec = _second_difference_spectrum(self.mean_encoder - self.simulate(phys))
         out = np.stack([_stack(spec[g] * self.weights[g]) for g in range(len(self.index))])
         for g, q in enumerate(self.basis(ring)):
@@ -598,7 +593,7 @@ class Comparison:
         n = float(self.n_bins * len(self.index))
         if model is None:
             return n
-        phys = model if isinstance(model, Physics) else physics_of(model)
+        phys = model if isinstance(model, Physics) else model.physics()
         return n - sum(int(q.shape[1]) for q in self.basis(phys)) / 2.0
 
     @property
@@ -636,7 +631,7 @@ class Comparison:
 
     def diagnostics(self, model: PlantModel) -> Diagnostics:
         """Everything the report shows about one model."""
-        phys = physics_of(model)
+        phys = model.physics()
         mean_sim = self.simulate(phys)
         resid_moves = self.moves.encoder - self.simulate(phys, per_move=True)
         spec = _second_difference_spectrum(self.mean_encoder - mean_sim)
@@ -743,7 +738,7 @@ class CandidateFit:
 
     Attributes:
         effect: Effect name (``none``: the model as it is).
-        parameters: Fitted parameters (see :data:`~galvo_sysid.model.io.EFFECT_PARAMETERS`).
+        parameters: Fitted parameters (see :data:`~galvo_sysid.model.effects.EFFECTS`).
         n_parameters: Parameters fitted.
         cost: J of the augmented model.
         score: BIC drop against the model without the candidate (0 for ``none``).
@@ -795,7 +790,7 @@ class _Fitter:
     def __init__(self, comparison: Comparison, base: PlantModel) -> None:
         self.comp = comparison
         self.base = base
-        self.base_phys = physics_of(base)
+        self.base_phys = base.physics()
         self.base_cost = comparison.cost(base)
         self.max_current = float(np.max(np.abs(comparison.moves.current)))
 
@@ -896,7 +891,7 @@ class _Fitter:
         refinement of the full model's cost.
         """
         comp = self.comp
-        base_phys = physics_of(self.base)
+        base_phys = self.base.physics()
         resid = comp.whitened(base_phys)                  # (G, 2F)
         n = comp.moves.samples
         t = comp.moves.sample_period
@@ -908,7 +903,7 @@ class _Fitter:
         omegas, zetas = grid_w.ravel(), grid_z.ravel()
         length = comp.mean_ext.shape[1]
         pulse = mode_pulse_responses(omegas, zetas, gain=base_phys.gain_ratio,
-                                     lag=base_phys.lag, delay=base_phys.pure_delay,
+                                     lag=base_phys.lag_time_constant, delay=base_phys.pure_delay,
                                      sample_period=t, length=length)
         resp = _fft_conv(comp.mean_ext[None, :, :], pulse[:, None, :], length - n, length)
         resp_s = _second_difference_spectrum(resp)                       # (P, G, F)
@@ -1250,7 +1245,7 @@ class DiscrepancyResult:
         Keys: effect, parameters, gap_before, gap_after, candidates, steps, then where,
         where_after, moves, angles, threshold, noise_gap and model (the final model).
         """
-        from galvo_sysid.model.io import model_to_dict
+        from galvo_sysid.model.files import model_to_dict
 
         return {
             'effect': self.effect,
@@ -1269,7 +1264,7 @@ class DiscrepancyResult:
         }
 
 
-def find_discrepancy(moves: MoveSet, model: PlantModel = NOMINAL_MODEL, *,
+def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
                      threshold: float = DEFAULT_THRESHOLD, max_effects: int = 3,
                      min_gap: float | None = None, min_improvement: float = 0.25,
                      effects: Sequence[str] = EFFECT_NAMES,
@@ -1297,7 +1292,7 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = NOMINAL_MODEL, *,
         InvalidDataError: Too few moves.
         ConfigurationError: Unknown effect name or bad settings.
     """
-    unknown = [e for e in effects if e not in EFFECT_PARAMETERS]
+    unknown = [e for e in effects if e not in EFFECTS]
     if unknown:
         raise ConfigurationError(f'unknown effect(s) {unknown}; expected {EFFECT_NAMES}')
     if not (math.isfinite(threshold) and max_effects >= 0 and 0 <= min_improvement < 1):

@@ -188,7 +188,7 @@ class _Demo:
 
 def main() -> int:
     """Run the demo; return the process exit code."""
-    from galvo_sysid.model.modal import REFERENCE_MODEL
+    from galvo_sysid.model import REFERENCE_MODEL
 
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))

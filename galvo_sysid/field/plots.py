@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.model.modal import REFERENCE_MODEL, TAU, ModalModel
+from galvo_sysid.model import REFERENCE_MODEL, TAU, ModalModel
 
 if TYPE_CHECKING:
     import os

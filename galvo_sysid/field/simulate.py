@@ -38,13 +38,12 @@ if TYPE_CHECKING:
     import os
     from collections.abc import Iterable, Sequence
 
-    from galvo_sysid.model.effects import Drift, StepChange
+    from galvo_sysid.model.changes import Drift, StepChange
     from galvo_sysid.sim.simulator import Move, SimulatorConfig
 
 __all__ = [
     'SimulationSummary',
     'parse_drift',
-    'parse_effect',
     'parse_step',
     'simulate_bag',
     'write_moves',
@@ -57,12 +56,12 @@ _STEP = re.compile(rf'^\s*(\w+)\s*=\s*({_NUMBER})\s*@\s*({_NUMBER})\s*(s|move)?\
 
 
 def parse_drift(text: str) -> Drift:
-    """``PARAM=RATE/UNIT[@START]`` -> :class:`~galvo_sysid.model.effects.Drift` (relative rate).
+    """``PARAM=RATE/UNIT[@START]`` -> :class:`~galvo_sysid.model.changes.Drift` (relative rate).
 
     Raises:
         ConfigurationError: Bad syntax or unknown parameter.
     """
-    from galvo_sysid.model.effects import Drift
+    from galvo_sysid.model.changes import Drift
 
     m = _DRIFT.match(text)
     if not m:
@@ -79,12 +78,12 @@ def parse_drift(text: str) -> Drift:
 
 
 def parse_step(text: str) -> StepChange:
-    """``PARAM=FACTOR@WHEN[s]`` -> :class:`~galvo_sysid.model.effects.StepChange` (a factor).
+    """``PARAM=FACTOR@WHEN[s]`` -> :class:`~galvo_sysid.model.changes.StepChange` (a factor).
 
     Raises:
         ConfigurationError: Bad syntax or unknown parameter.
     """
-    from galvo_sysid.model.effects import StepChange
+    from galvo_sysid.model.changes import StepChange
 
     m = _STEP.match(text)
     if not m:
@@ -94,29 +93,6 @@ def parse_step(text: str) -> StepChange:
     name, factor, at, unit = m.groups()
     return StepChange(parameter=name, value=float(factor), at=float(at),
                       unit='second' if unit == 's' else 'move', relative=True)
-
-
-def parse_effect(text: str) -> tuple[str, dict[str, float]]:
-    """``NAME:KEY=VALUE,...`` -> ``(name, parameters)``.
-
-    Raises:
-        ConfigurationError: Bad syntax.
-    """
-    name, _, rest = text.partition(':')
-    params: dict[str, float] = {}
-    for item in filter(None, (p.strip() for p in rest.split(','))):
-        key, sep, value = item.partition('=')
-        try:
-            if not sep:
-                raise ValueError(item)
-            params[key.strip()] = float(value)
-        except ValueError:
-            msg = f'bad effect {text!r}: expected NAME:KEY=VALUE[,KEY=VALUE...]'
-            raise ConfigurationError(msg) from None
-    if not name.strip():
-        msg = f'bad effect {text!r}: no effect name'
-        raise ConfigurationError(msg)
-    return name.strip(), params
 
 
 @dataclass(frozen=True)
@@ -184,13 +160,15 @@ def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
         drift: Drifts, ``PARAM=RATE/UNIT[@START]`` (see the module docs).
         steps: Step changes, ``PARAM=FACTOR@WHEN``.
         effects: Physical effects, ``NAME:KEY=VALUE,...``.
-        config: Base simulator configuration (default: the nominal scanner).
+        config: Base simulator configuration (default: the paper's scanner); its plant model
+            sets the sample period, record and dwell lengths unless the config overrides them.
         frame_id: Header frame id of the messages.
 
     Raises:
         ConfigurationError: Bad schedule, change or effect.
         BagExistsError: ``out`` exists.
     """
+    from galvo_sysid.model.effects import parse_effect
     from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig
 
     if not angles:
@@ -200,16 +178,13 @@ def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
         msg = f'moves-per-angle must be a positive even number, got {moves_per_angle}'
         raise ConfigurationError(msg)
     base = config or SimulatorConfig()
-    plant_effects = base.plant.effects
-    for text in effects:
-        name, params = parse_effect(text)
-        plant_effects = plant_effects.with_effect(name, params, dynamics=base.plant.dynamics,
-                                                  sample_period=base.sample_period)
-    cfg = replace(base, plant=replace(base.plant, effects=plant_effects),
+    plant = base.plant.with_effects([parse_effect(text) for text in effects])
+    cfg = replace(base, plant=plant,
                   drifts=(*base.drifts, *(parse_drift(d) for d in drift)),
                   steps=(*base.steps, *(parse_step(s) for s in steps)))
     start = time.perf_counter()
     sim = GalvoSimulator(config=cfg, seed=seed)
+    sim.check_angles(angles)
     path = Path(out)
     with BagWriter(path, storage=storage) as bag:
         bag.add_topic(CURRENT_TOPIC, MOVE_SAMPLES)

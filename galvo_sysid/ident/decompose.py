@@ -32,7 +32,6 @@ kept for the Bode plots of the paper's Fig. 10/11 and for comparison.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from itertools import pairwise
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -41,7 +40,8 @@ import scipy.linalg
 from galvo_sysid.errors import ConfigurationError, IdentificationError
 from galvo_sysid.ident.arx import ArxModel
 from galvo_sysid.ident.filters import lfilter
-from galvo_sysid.model.modal import REFERENCE_MODEL, InputDynamics, ModalModel
+from galvo_sysid.model import REFERENCE_MODEL, InputDynamics, ModalModel
+from galvo_sysid.model.modal import Band, default_bands
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -65,35 +65,6 @@ __all__ = [
 
 DEFAULT_MAX_DAMPING = 0.3
 """Largest damping ratio a pole pair may have to count as a resonant mode."""
-
-Band = tuple[float, float]
-
-
-def default_bands(reference: ModalModel = REFERENCE_MODEL, *, outer_ratio: float | None = None,
-                  sample_period: float | None = None) -> tuple[Band, ...]:
-    """Frequency bands [rad/s] that partition the axis around the reference modes.
-
-    Neighbouring bands meet at the geometric mean of neighbouring natural frequencies. The
-    outer edges are ``omega_1 / outer_ratio`` and ``omega_n * outer_ratio``; by default
-    (``None``) they mirror the inner edges, so the first and last bands are symmetric in log
-    frequency (for Table I: omega_1 / 1.296 and omega_3 * 1.185, i.e. 54.9e3 .. 198.4e3 rad/s).
-    The upper edge is capped at 0.98 of the Nyquist frequency when ``sample_period`` is given.
-    """
-    if outer_ratio is not None and not outer_ratio > 1:
-        raise ConfigurationError(f'outer_ratio must be > 1, got {outer_ratio}')
-    w = reference.natural_frequencies
-    if not w:
-        raise ConfigurationError('reference model has no resonant modes')
-    if outer_ratio is None and len(w) == 1:
-        outer_ratio = 1.3
-    low_ratio = float(np.sqrt(w[1] / w[0])) if outer_ratio is None else outer_ratio
-    high_ratio = float(np.sqrt(w[-1] / w[-2])) if outer_ratio is None else outer_ratio
-    edges = [w[0] / low_ratio, *(float(np.sqrt(a * b)) for a, b in pairwise(w)),
-             w[-1] * high_ratio]
-    if sample_period is not None:
-        edges[-1] = min(edges[-1], 0.98 * np.pi / sample_period)
-    return tuple((float(lo), float(hi)) for lo, hi in pairwise(edges))
-
 
 def zoh_mode_numerator(omega: float, zeta: float, sample_period: float) -> tuple[float, float]:
     """Return (beta1, beta0): ZOH of 1/(s^2 + 2 zeta omega s + omega^2) is (beta1 z + beta0)/den.

@@ -35,11 +35,18 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from galvo_sysid.errors import ConfigurationError, GalvoSysidError, InvalidDataError
-from galvo_sysid.ident.paper import PAPER_DELAY, paper_pipeline
+from galvo_sysid.errors import (
+    ConfigurationError,
+    GalvoSysidError,
+    InvalidDataError,
+    ModelMismatchError,
+)
+from galvo_sysid.ident.paper import paper_pipeline
 from galvo_sysid.ident.preprocess import MIN_ANGLE_SPAN, validate_records
+from galvo_sysid.ident.refine import DEFAULT_RESOLVE_Z as RESOLVE_Z
 from galvo_sysid.ident.refine import model_fit_percent, refine_fit, refine_joint
-from galvo_sysid.model.modal import REFERENCE_MODEL, ModalModel
+from galvo_sysid.model import PAPER_MODEL, ModalModel, PlantModel
+from galvo_sysid.model.dynamics import check_sample_period
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -49,6 +56,7 @@ if TYPE_CHECKING:
 __all__ = [
     'METHODS',
     'IdentificationResult',
+    'check_model_period',
     'identify_joint',
     'identify_window',
     'pool_results',
@@ -81,6 +89,9 @@ class IdentificationResult:
         damping_ratios_std: Standard deviations of zeta_i.
         fit_percent: Fit of the (1 - q^-1)^2-filtered averaged output [%] (see module docs).
         method: ``'paper-A'``, ``'paper-B'`` or ``'refined'``.
+        resolved: Per mode, whether the data place it (its residue is significant, at least
+            5 standard deviations); an unresolved mode's numbers say nothing (its std is
+            widened to its band).
     """
 
     target_angle: float
@@ -97,6 +108,7 @@ class IdentificationResult:
     damping_ratios_std: tuple[float, ...]
     fit_percent: float
     method: str
+    resolved: tuple[bool, ...] = ()
 
     @property
     def model(self) -> ModalModel:
@@ -188,52 +200,64 @@ def _jackknife_std(cur: NDArray[np.float64], enc: NDArray[np.float64], *, sample
 
 def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
                     method: str = 'refined', target_angle: float | None = None,
-                    n_modes: int = 3, **options: Any) -> IdentificationResult:
+                    model: PlantModel | None = None, n_modes: int | None = None,
+                    **options: Any) -> IdentificationResult:
     """Identify the modal model from one window of moves.
+
+    The scanner's model (default: the paper's) sets what is identified: the number of modes,
+    each mode's frequency band, the starting point, the input dynamics (the paper methods'
+    fictitious input uses its equivalent delay; the refined fit its computation delay, dead
+    time and, as the start, its amplifier lag) and the sample period the data must have.
 
     Args:
         current: Current records [A], shape (M, N): M moves of one target angle.
         encoder: Encoder records [deg], shape (M, N), raw (each starts at rest at its start
             angle, which is subtracted).
-        sample_period: Sampling period [s].
+        sample_period: Sampling period [s] of the records.
         method: ``'refined'`` (default), ``'paper-A'`` or ``'paper-B'``.
         target_angle: Signed commanded rotation [deg]; estimated from the encoder if None.
-        n_modes: Resonant modes to identify (the bands must match: pass ``bands`` for
-            anything but the reference model's 3 modes).
-        **options: Passed on. Common: ``bands`` (per-mode frequency bands [rad/s]),
-            ``reference`` (model setting the default bands, default Table I),
-            ``min_angle_span`` [deg]. Paper methods: ``delay`` (default 1.6 T; None estimates
-            it), ``na``, ``nb``, ``solver``, ``max_damping``, ``jackknife_groups``
-            (default 10; 0 for no std, reported as nan). Refined: ``lag_time_constant``,
-            ``estimate_lag``, ``computation_delay``, ``dead_time``, ``damping_start``,
-            ``extra_starts``, ``scan_points``, ``lag_bounds``, ``resolve_z``, ``whiten_order``,
-            ``adequacy_limit``, ``max_nfev`` (see
-            :func:`galvo_sysid.ident.refine.refine_fit`).
+        model: The scanner's model (:class:`~galvo_sysid.model.plant.PlantModel`).
+        n_modes: Resonant modes to identify (default: the model's; another number needs
+            ``bands``).
+        **options: Passed on. Common: ``bands`` (per-mode frequency bands [rad/s], default
+            the model's), ``reference`` (modal model of the start and the paper pipeline's
+            mode selection, default the model's), ``min_angle_span`` [deg]. Paper methods:
+            ``delay`` (default the model's equivalent delay; None estimates it), ``na``,
+            ``nb``, ``solver``, ``max_damping``, ``jackknife_groups`` (default 10; 0 for no
+            std, reported as nan). Refined: ``lag_time_constant``, ``estimate_lag``,
+            ``computation_delay``, ``dead_time``, ``damping_start``, ``extra_starts``,
+            ``scan_points``, ``lag_bounds``, ``resolve_z``, ``whiten_order``,
+            ``adequacy_limit``, ``max_nfev`` (see :func:`galvo_sysid.ident.refine.refine_fit`).
 
     Returns:
         The identified parameters with their standard deviations.
 
     Raises:
         InvalidDataError: Wrong shapes, too few or too short records, NaN/Inf, no excitation.
-        IdentificationError: The fit failed, or a band holds no physical mode.
+        ModelMismatchError: The data do not match the model (another sample period, a mode at
+            its band edge, a residual far above the noise).
+        IdentificationError: The fit failed.
         ConfigurationError: Unknown method or options.
     """
     if method not in METHODS:
         raise ConfigurationError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
-    if not (isinstance(sample_period, int | float) and math.isfinite(sample_period)
-            and sample_period > 0):
-        raise ConfigurationError(f'sample_period must be positive and finite, got {sample_period}')
+    t = check_sample_period(sample_period)
+    plant = PAPER_MODEL if model is None else model
+    check_model_period(plant, t)
     opts = dict(options)
-    reference: ModalModel = opts.pop('reference', REFERENCE_MODEL)
+    reference: ModalModel = opts.pop('reference', plant.modal)
+    n = reference.n_modes if n_modes is None else int(n_modes)
     bands = opts.pop('bands', None)
+    if bands is None:
+        if n != plant.n_modes or reference.n_modes != plant.n_modes:
+            raise ConfigurationError(f'{n} modes asked but the model has {plant.n_modes}; '
+                                     f'pass bands')
+        bands = plant.mode_bands()
     min_span = float(opts.pop('min_angle_span', MIN_ANGLE_SPAN))
-    if n_modes < 1:
-        raise ConfigurationError(f'n_modes must be >= 1, got {n_modes}')
-    if bands is None and n_modes != reference.n_modes:
-        raise ConfigurationError(f'n_modes={n_modes} but the reference model has '
-                                 f'{reference.n_modes} modes; pass bands')
-    if bands is not None and len(bands) != n_modes:
-        raise ConfigurationError(f'{len(bands)} bands for n_modes={n_modes}')
+    if n < 1:
+        raise ConfigurationError(f'n_modes must be >= 1, got {n}')
+    if len(bands) != n:
+        raise ConfigurationError(f'{len(bands)} bands for {n} modes')
     paper_keys = {'delay', 'na', 'nb', 'solver', 'max_damping'}
     refine_keys = {'lag_time_constant', 'estimate_lag', 'computation_delay', 'dead_time',
                    'damping_start', 'extra_starts', 'scan_points', 'lag_bounds', 'max_nfev',
@@ -244,6 +268,7 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
     if unknown:
         raise ConfigurationError(f'unknown options for method {method!r}: {sorted(unknown)}')
     paper_opts = {k: opts[k] for k in paper_keys & set(opts)}
+    paper_opts.setdefault('delay', plant.equivalent_delay)
     paper_opts.update(bands=bands, reference=reference, min_angle_span=min_span)
     cur, enc = validate_records(current, encoder, na=paper_opts.get('na', 15),
                                 nb=paper_opts.get('nb', 15), min_angle_span=min_span)
@@ -252,32 +277,51 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
     moves = cur.shape[0]
     if method in ('paper-A', 'paper-B'):
         which = method[-1]
-        model, delay, fit = _paper_window(cur, enc, sample_period=sample_period, method=which,
+        found, delay, fit = _paper_window(cur, enc, sample_period=t, method=which,
                                           options=paper_opts)
-        stds = _jackknife_std(cur, enc, sample_period=sample_period, method=which,
+        stds = _jackknife_std(cur, enc, sample_period=t, method=which,
                               options=paper_opts, groups=groups) if groups else {}
         if not stds:
-            stds = dict.fromkeys(model.parameters(), float('nan'))
-        return _from_vectors(model.parameters(), stds, n_modes=model.n_modes,
+            stds = dict.fromkeys(found.parameters(), float('nan'))
+        resolved = tuple(not abs(k) < RESOLVE_Z * stds.get(f'k{i}', math.nan)
+                         for i, k in enumerate(found.residues, start=1))
+        return _from_vectors(found.parameters(), stds, n_modes=found.n_modes,
                              target_angle=angle, moves=moves, input_delay=delay,
-                             lag_time_constant=0.0, fit_percent=fit, method=method)
+                             lag_time_constant=0.0, fit_percent=fit, method=method,
+                             resolved=resolved)
     # Refined: start from the paper pipeline (method A); its failure is not fatal because the
     # refined fit scans every band for its own start.
     try:
-        initial = paper_pipeline(cur, enc, sample_period=sample_period, method='A',
-                                 delay=paper_opts.pop('delay', PAPER_DELAY),
-                                 **paper_opts).model
+        initial = paper_pipeline(cur, enc, sample_period=t, method='A', **paper_opts).model
     except GalvoSysidError:
         initial = reference
-    if initial.n_modes != n_modes:
-        raise ConfigurationError(f'the starting model has {initial.n_modes} modes, not {n_modes}')
-    refine_opts = {k: opts[k] for k in refine_keys & set(opts)}
-    refined = refine_fit(cur, enc, sample_period=sample_period, initial=initial, bands=bands,
+    if initial.n_modes != n:
+        raise ConfigurationError(f'the starting model has {initial.n_modes} modes, not {n}')
+    refine_opts = {**_refine_defaults(plant), **{k: opts[k] for k in refine_keys & set(opts)}}
+    refined = refine_fit(cur, enc, sample_period=t, initial=initial, bands=bands,
                          **refine_opts)
-    return _from_vectors(refined.model.parameters(), refined.std_by_name(), n_modes=n_modes,
+    return _from_vectors(refined.model.parameters(), refined.std_by_name(), n_modes=n,
                          target_angle=angle, moves=moves, input_delay=refined.input_delay,
                          lag_time_constant=refined.lag_time_constant,
-                         fit_percent=refined.fit_percent, method='refined')
+                         fit_percent=refined.fit_percent, method='refined',
+                         resolved=refined.resolved)
+
+
+def check_model_period(model: PlantModel, sample_period: float) -> None:
+    """Raise ModelMismatchError if data of ``sample_period`` cannot be the model's."""
+    if abs(sample_period - model.sample_period) > 1e-6 * model.sample_period:
+        raise ModelMismatchError(
+            f"the data's sample period {sample_period:.6g} s differs from the model's "
+            f'{model.sample_period:.6g} s')
+
+
+def _refine_defaults(model: PlantModel) -> dict[str, Any]:
+    """The refined fit's input dynamics from the model (the lag is the start)."""
+    ph = model.physics()
+    t = model.sample_period
+    return {'computation_delay': ph.computation_delay, 'dead_time': ph.dead_time,
+            'lag_time_constant': ph.lag_time_constant,
+            'lag_bounds': (0.0, max(3.0, 3.0 * ph.lag_time_constant / t))}
 
 
 def _pool_parameter(v: NDArray[np.float64], s: NDArray[np.float64], *,
@@ -358,18 +402,24 @@ def pool_results(results: Sequence[IdentificationResult], *,
     fits = np.array([r.fit_percent for r in items])
     fit = float(np.sum(weights * fits) / np.sum(weights)) if np.all(np.isfinite(fits)) \
         else float(np.nanmean(fits)) if np.any(np.isfinite(fits)) else float('nan')
-    return _from_vectors(pooled, pooled_std, n_modes=n_modes.pop(), target_angle=angle,
+    n = n_modes.pop()
+    resolved = tuple(not abs(pooled[f'k{i}']) < RESOLVE_Z * pooled_std[f'k{i}']
+                     for i in range(1, n + 1))
+    return _from_vectors(pooled, pooled_std, n_modes=n, target_angle=angle,
                          moves=moves,
                          input_delay=float(np.mean([r.input_delay for r in items])),
                          lag_time_constant=float(np.mean([r.lag_time_constant for r in items])),
-                         fit_percent=fit, method=methods.pop())
+                         fit_percent=fit, method=methods.pop(), resolved=resolved)
 
 
 def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float,
                    initial: IdentificationResult | ModalModel | None = None,
-                   target_angle: float | None = None, n_modes: int = 3,
-                   **options: Any) -> IdentificationResult:
+                   target_angle: float | None = None, model: PlantModel | None = None,
+                   n_modes: int | None = None, **options: Any) -> IdentificationResult:
     """Identify one modal model from several windows of the same plant (joint refined fit).
+
+    The model (default: the paper's) sets modes, bands and input dynamics as for
+    :func:`identify_window`.
 
     Args:
         windows: ``(current, encoder)`` per window, each (M_w, N_w) raw records as for
@@ -378,7 +428,8 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
         initial: Starting model; default: :func:`pool_results` of :func:`identify_window`
             on each window (windows whose single fit fails still enter the joint fit).
         target_angle: Reported angle (default: the common estimated angle, nan if they differ).
-        n_modes: Resonant modes (pass ``bands`` unless it is the reference model's 3).
+        model: The scanner's model (:class:`~galvo_sysid.model.plant.PlantModel`).
+        n_modes: Resonant modes (default the model's; another number needs ``bands``).
         **options: ``bands``, ``reference``, ``min_angle_span`` and the refined options of
             :func:`identify_window` (``scan_points``, ``whiten_order``, ...), and
             ``keep_initial_damping`` (start from ``initial`` as it is; see
@@ -394,9 +445,19 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
     """
     if not windows:
         raise InvalidDataError('no windows to fit')
+    t = check_sample_period(sample_period)
+    plant = PAPER_MODEL if model is None else model
+    check_model_period(plant, t)
     opts = dict(options)
-    reference: ModalModel = opts.get('reference', REFERENCE_MODEL)
+    reference: ModalModel = opts.get('reference', plant.modal)
+    if n_modes is None:
+        n_modes = reference.n_modes
     bands = opts.get('bands')
+    if bands is None:
+        if n_modes != plant.n_modes:
+            raise ConfigurationError(f'{n_modes} modes asked but the model has '
+                                     f'{plant.n_modes}; pass bands')
+        bands = plant.mode_bands()
     min_span = float(opts.get('min_angle_span', MIN_ANGLE_SPAN))
     joint_keys = {'lag_time_constant', 'estimate_lag', 'computation_delay', 'dead_time',
                   'damping_start', 'scan_points', 'lag_bounds', 'max_nfev', 'resolve_z',
@@ -422,14 +483,15 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
         for cur, enc in records:
             try:
                 singles.append(identify_window(cur, enc, sample_period=sample_period,
-                                               n_modes=n_modes, **opts))
+                                               model=plant, n_modes=n_modes, **opts))
             except GalvoSysidError:
                 continue
         start = pool_results(singles).model if singles else reference
     if start.n_modes != n_modes:
         raise ConfigurationError(f'the starting model has {start.n_modes} modes, not {n_modes}')
-    fit = refine_joint(records, sample_period=sample_period, initial=start, bands=bands,
-                       **{k: opts[k] for k in joint_keys & set(opts)})
+    joint_opts = {k: v for k, v in _refine_defaults(plant).items() if k in joint_keys}
+    joint_opts.update({k: opts[k] for k in joint_keys & set(opts)})
+    fit = refine_joint(records, sample_period=t, initial=start, bands=bands, **joint_opts)
     if target_angle is None:
         est = np.array([_estimated_angle(enc) for _, enc in records])
         same = np.ptp(est) <= 0.01 * float(np.median(np.abs(est)))
@@ -439,4 +501,4 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
     return _from_vectors(fit.model.parameters(), fit.std_by_name(), n_modes=n_modes,
                          target_angle=angle, moves=int(sum(c.shape[0] for c, _ in records)),
                          input_delay=fit.input_delay, lag_time_constant=fit.lag_time_constant,
-                         fit_percent=fit.fit_percent, method='refined')
+                         fit_percent=fit.fit_percent, method='refined', resolved=fit.resolved)

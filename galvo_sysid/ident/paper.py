@@ -28,7 +28,7 @@ from galvo_sysid.ident.preprocess import (
     concatenate_records,
     validate_records,
 )
-from galvo_sysid.model.modal import (
+from galvo_sysid.model import (
     REFERENCE_MODEL,
     TAU,
     ModalModel,

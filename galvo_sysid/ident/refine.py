@@ -59,9 +59,14 @@ from scipy import fft as sp_fft
 from scipy.linalg import LinAlgError, cholesky, qr, solve_toeplitz, solve_triangular
 from scipy.optimize import least_squares
 
-from galvo_sysid.errors import ConfigurationError, IdentificationError, InvalidDataError
+from galvo_sysid.errors import (
+    ConfigurationError,
+    IdentificationError,
+    InvalidDataError,
+    ModelMismatchError,
+)
 from galvo_sysid.ident.decompose import default_bands
-from galvo_sysid.model.modal import TAU, ModalModel
+from galvo_sysid.model import TAU, ModalModel
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -389,6 +394,12 @@ class RefinedFit:
     residual_to_noise: tuple[tuple[tuple[float, float], float], ...] = ()
 
     @property
+    def resolved(self) -> tuple[bool, ...]:
+        """Per mode, whether the data resolve it (see :attr:`unresolved_modes`)."""
+        return tuple(i not in self.unresolved_modes
+                     for i in range(1, self.model.n_modes + 1))
+
+    @property
     def input_delay(self) -> float:
         """Low-frequency equivalent input delay [s]: computation delay + dead time + lag."""
         return self.computation_delay * self.sample_period + self.dead_time \
@@ -711,7 +722,7 @@ def _validate(current: ArrayLike, encoder: ArrayLike) -> tuple[NDArray[np.float6
 def _bands_for(initial: ModalModel, bands: Sequence[tuple[float, float]] | None,
                sample_period: float) -> list[tuple[float, float]]:
     if bands is None:
-        bands = default_bands(sample_period=sample_period)
+        bands = default_bands(initial, sample_period=sample_period)
     out = [(float(lo), float(hi)) for lo, hi in bands]
     if len(out) != initial.n_modes:
         raise ConfigurationError(f'{len(out)} bands for {initial.n_modes} modes')
@@ -871,7 +882,7 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
         if dev is not None and noisy else ()
     for (lo, hi), ratio in ratios:
         if adequacy_limit > 0 and ratio > adequacy_limit:
-            raise IdentificationError(
+            raise ModelMismatchError(
                 f'the residual between {lo:.4g} and {hi:.4g} rad/s is {ratio:.3g} times the '
                 f'noise: the data hold dynamics the model lacks there (no physical mode in a '
                 f'band, or a mode outside its band)')
@@ -881,7 +892,7 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
     unresolved = tuple(i for i in range(n) if abs(coef[1 + i]) < resolve_z * k_std[i])
     if edge is not None and edge not in unresolved:
         lo, hi = band_list[edge]
-        raise IdentificationError(
+        raise ModelMismatchError(
             f'no physical mode {edge + 1} in the band {lo:.4g}..{hi:.4g} rad/s (the fit ended at '
             f'omega = {omega[edge]:.4g} rad/s, zeta = {zeta[edge]:.3g})')
     _inflate_unresolved(cov, unresolved, band_list, n)
@@ -1264,7 +1275,7 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
     unresolved = tuple(i for i in range(n) if abs(shared[1 + i]) < resolve_z * k_std[i])
     if edge is not None and edge not in unresolved:
         lo, hi = band_list[edge]
-        raise IdentificationError(
+        raise ModelMismatchError(
             f'no physical mode {edge + 1} in the band {lo:.4g}..{hi:.4g} rad/s (the joint fit '
             f'ended at omega = {omega[edge]:.4g} rad/s, zeta = {zeta[edge]:.3g})')
     _inflate_unresolved(cov, unresolved, band_list, n)

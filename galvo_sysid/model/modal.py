@@ -1,60 +1,49 @@
-"""The galvano scanner plant: modal mechanics (paper Eq. 1) and the input dynamics.
+"""The modal model of the scanner's mechanics (paper Eq. 1).
 
 The mechanical part is a rigid-body mode plus resonant modes::
 
     P_mech(s) = k0 / s^2 + sum_i k_i / (s^2 + 2 zeta_i omega_i s + omega_i^2)
 
-from the commanded current u [A] to the motor-shaft angle y [deg]. Between the DSP's
-current command and the torque sit the input dynamics: ``computation_delay`` whole sample
-periods of DSP computation delay and the current amplifier's first-order lag with time
-constant ``lag_time_constant``. The paper lumps both into an equivalent delay of 1.6 sample
-periods (one sample plus a 0.6-sample lag).
-
-This module holds the model types, the paper's reference values (Table I) and accuracy
-(Table II), frequency responses, and the exact zero-order-hold discretisation used to
-simulate the plant.
+from the commanded current u [A] to the motor-shaft angle y [deg]. Parameters are named
+``k0``, ``k1``.., ``omega_1``.., ``zeta_1``.. (:func:`parameter_names`); each mode has a
+frequency band in which identification looks for it (:func:`default_bands`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.linalg import expm
 
-from galvo_sysid.errors import ConfigurationError, InvalidDataError
+from galvo_sysid.errors import ConfigurationError
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
-
     from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
-    'PAPER_ANGLES',
-    'PAPER_TABLE_II',
-    'PSI',
-    'REFERENCE_MODEL',
-    'TAU',
-    'DiscreteStateSpace',
-    'InputDynamics',
+    'MAX_MAGNITUDE',
+    'Band',
     'ModalModel',
-    'discretize',
-    'modal_state_space',
+    'default_bands',
+    'parameter_names',
     'relative_errors',
-    'simulate',
 ]
 
-TAU = 10e-6
-"""Sampling period of the paper's DSP [s]."""
+Band = tuple[float, float]
+"""A frequency band (low, high) [rad/s]."""
 
-PSI = 0.3
-"""The paper's unit rotation angle psi [deg]."""
+MAX_MAGNITUDE = 1e15
+"""Largest magnitude of any modal parameter (gains of real scanners are below 1e9 deg/(A s^2)
+and frequencies below 1e7 rad/s); beyond it a value is a typo or an attack."""
 
-PAPER_ANGLES: tuple[float, ...] = tuple(
-    round(f * PSI, 10) for f in (*[i / 10 for i in range(1, 10)], *range(1, 11))
-)
-"""The 19 rotation angles of the paper's experiments, 0.1 psi ... 10 psi [deg]."""
+
+def parameter_names(n_modes: int) -> tuple[str, ...]:
+    """Return the parameter names of a model with ``n_modes`` resonant modes, in order."""
+    return ('k0', *(f'k{i}' for i in range(1, n_modes + 1)),
+            *(f'omega_{i}' for i in range(1, n_modes + 1)),
+            *(f'zeta_{i}' for i in range(1, n_modes + 1)))
 
 
 @dataclass(frozen=True)
@@ -86,6 +75,8 @@ class ModalModel:
             raise ConfigurationError('natural frequencies must be positive')
         if any(z <= 0 for z in self.damping_ratios):
             raise ConfigurationError('damping ratios must be positive')
+        if np.max(np.abs(values)) > MAX_MAGNITUDE:
+            raise ConfigurationError(f'modal parameters must stay within +-{MAX_MAGNITUDE:g}')
 
     @property
     def n_modes(self) -> int:
@@ -112,207 +103,43 @@ class ModalModel:
         return np.asarray(h, dtype=np.complex128)
 
 
-REFERENCE_MODEL = ModalModel(
-    k0=3.564e6,
-    residues=(2.069e6, -5.485e6, -4.604e5),
-    natural_frequencies=(7.108e4, 1.193e5, 1.674e5),
-    damping_ratios=(6.218e-3, 7.723e-3, 4.579e-3),
-)
-"""The paper's Table I: the servo-analyzer curve fit, regarded as the true plant."""
+def default_bands(reference: ModalModel, *, outer_ratio: float | None = None,
+                  sample_period: float | None = None) -> tuple[Band, ...]:
+    """Frequency bands [rad/s] that partition the axis around the reference modes.
 
-PAPER_TABLE_II: dict[str, dict[str, float]] = {
-    'A': {'k0': -3.638, 'k1': 6.301, 'k2': -23.13, 'k3': 61.93, 'omega_1': 0.5523,
-          'omega_2': 1.053, 'omega_3': 1.690, 'zeta_1': -9.581, 'zeta_2': -8.513,
-          'zeta_3': 655.4},
-    'B': {'k0': -3.583, 'k1': 0.8503, 'k2': -25.15, 'k3': -612.4, 'omega_1': 0.9544,
-          'omega_2': 1.082, 'omega_3': 2.531, 'zeta_1': 136.2, 'zeta_2': 5.023,
-          'zeta_3': 1216.0},
-}
-"""The paper's Table II: relative errors [%] of its identified model, methods A and B."""
-
-
-@dataclass(frozen=True)
-class InputDynamics:
-    """What sits between the DSP's current command and the motor torque.
-
-    Attributes:
-        computation_delay: DSP computation delay in whole sample periods.
-        lag_time_constant: Time constant of the current amplifier's first-order lag [s];
-            0 means no lag.
-        dead_time: Extra pure delay [s] (0 for the nominal plant).
+    Neighbouring bands meet at the geometric mean of neighbouring natural frequencies. The
+    outer edges are ``omega_1 / outer_ratio`` and ``omega_n * outer_ratio``; by default
+    (``None``) they mirror the inner edges, so the first and last bands are symmetric in log
+    frequency (for Table I: omega_1 / 1.296 and omega_3 * 1.185, i.e. 54.9e3 .. 198.4e3 rad/s;
+    a single mode gets a ratio of 1.3). The upper edge is capped at 0.98 of the Nyquist
+    frequency when ``sample_period`` is given.
     """
-
-    computation_delay: int = 1
-    lag_time_constant: float = 0.6 * TAU
-    dead_time: float = 0.0
-
-    def __post_init__(self) -> None:
-        if self.computation_delay < 0:
-            raise ConfigurationError('computation_delay must be >= 0 samples')
-        if not (np.isfinite(self.lag_time_constant) and self.lag_time_constant >= 0):
-            raise ConfigurationError('lag_time_constant must be finite and >= 0')
-        if not (np.isfinite(self.dead_time) and self.dead_time >= 0):
-            raise ConfigurationError('dead_time must be finite and >= 0')
-
-    def equivalent_delay(self, sample_period: float) -> float:
-        """Return the low-frequency equivalent input delay [s]."""
-        return self.computation_delay * sample_period + self.lag_time_constant + self.dead_time
-
-    def frequency_response(self, omega: ArrayLike, sample_period: float) -> NDArray[np.complex128]:
-        """Return the input dynamics' continuous-time frequency response at ``omega``."""
-        w = np.asarray(omega, dtype=float)
-        delay = self.computation_delay * sample_period + self.dead_time
-        return np.asarray(np.exp(-1j * w * delay) / (1 + 1j * w * self.lag_time_constant),
-                          dtype=np.complex128)
-
-
-@dataclass(frozen=True)
-class DiscreteStateSpace:
-    """x[k+1] = a x[k] + b u[k], y[k] = c x[k]; the plant from command to encoder angle."""
-
-    a: NDArray[np.float64]
-    b: NDArray[np.float64]
-    c: NDArray[np.float64]
-
-
-def modal_state_space(*, gains: Sequence[float], frequencies: Sequence[float],
-                      dampings: Sequence[float], lag_time_constant: float,
-                      input_gain: float = 1.0) -> tuple[NDArray[np.float64], NDArray[np.float64],
-                                                         NDArray[np.float64], NDArray[np.float64]]:
-    """Continuous state space of ``input_gain * lag(s) * sum_i g_i/(s^2 + 2 z_i w_i s + w_i^2)``.
-
-    The states are the lag's output current first (if ``lag_time_constant`` > 0), then
-    (position, velocity) per mode; the output is the sum of the mode positions.
-
-    Args:
-        gains: Mode gains g_i (the rigid body is a mode with frequency 0, damping 0).
-        frequencies: Natural frequencies w_i [rad/s].
-        dampings: Damping ratios z_i.
-        lag_time_constant: First-order lag in front of the mechanics [s] (0: none).
-        input_gain: Factor between the command and the mechanics (e.g. a torque-constant ratio).
-
-    Returns:
-        ``(a, b, drive, c)``: system matrix, command input, the mechanics' input per unit of
-        torque current (for disturbance currents added after the lag), output row.
-    """
-    off = 1 if lag_time_constant > 0 else 0
-    n = off + 2 * len(gains)
-    a = np.zeros((n, n))
-    drive = np.zeros(n)
-    c = np.zeros(n)
-    for i, (k, w, z) in enumerate(zip(gains, frequencies, dampings, strict=True)):
-        p, v = off + 2 * i, off + 2 * i + 1
-        a[p, v] = 1.0
-        a[v, p] = -w * w
-        a[v, v] = -2 * z * w
-        drive[v] = k
-        c[p] = 1.0
-    b = np.zeros(n)
-    if off:
-        a[0, 0] = -1.0 / lag_time_constant
-        b[0] = 1.0 / lag_time_constant
-        a[1:, 0] = input_gain * drive[1:]
-    else:
-        b = input_gain * drive
-    return a, b, drive, c
-
-
-def discretize(model: ModalModel, dynamics: InputDynamics,
-               sample_period: float) -> DiscreteStateSpace:
-    """Exact zero-order-hold discretisation of the plant including its input dynamics.
-
-    The computation delay adds ``computation_delay`` shift states; a dead time that is not a
-    multiple of the sample period is handled exactly by splitting the hold interval.
-
-    Args:
-        model: Mechanical modal model.
-        dynamics: Input delay and amplifier lag.
-        sample_period: Sampling period [s].
-
-    Returns:
-        The discrete state space from command u[k] to angle y[k].
-    """
-    if not (np.isfinite(sample_period) and sample_period > 0):
-        raise ConfigurationError('sample_period must be positive and finite')
-    a_c, b_c, _, c_c = modal_state_space(
-        gains=[model.k0, *model.residues], frequencies=[0.0, *model.natural_frequencies],
-        dampings=[0.0, *model.damping_ratios], lag_time_constant=dynamics.lag_time_constant)
-    n = a_c.shape[0]
-
-    def zoh(t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(Phi, Gamma) of a zero-order hold held for time t."""
-        m = np.zeros((n + 1, n + 1))
-        m[:n, :n] = a_c * t
-        m[:n, n] = b_c * t
-        e = expm(m)
-        return e[:n, :n], e[:n, n]
-
-    # Total pure delay D = (whole + frac) T: over [kT, (k+1)T) the plant sees u[k-whole-1]
-    # for frac*T, then u[k-whole] for the rest of the period.
-    whole_f, frac = divmod(dynamics.computation_delay * sample_period + dynamics.dead_time,
-                           sample_period)
-    whole = round(whole_f)
-    eps = 1e-9 * sample_period
-    frac_t = frac if eps < frac < sample_period - eps else 0.0
-    if frac >= sample_period - eps:  # rounding left a whole period in frac
-        whole += 1
-    phi, _ = zoh(sample_period)
-    phi_rest, gamma_rest = zoh(sample_period - frac_t)
-    drives = {whole: gamma_rest}
-    if frac_t > 0:
-        drives[whole + 1] = phi_rest @ zoh(frac_t)[1]
-    length = max(drives)  # shift register u[k-1] .. u[k-length]
-    nd = n + length
-    a = np.zeros((nd, nd))
-    b = np.zeros(nd)
-    a[:n, :n] = phi
-    for lag_samples, g in drives.items():
-        if lag_samples == 0:
-            b[:n] = g
-        else:
-            a[:n, n + lag_samples - 1] = g
-    if length:
-        b[n] = 1.0
-        for j in range(1, length):
-            a[n + j, n + j - 1] = 1.0
-    c = np.zeros(nd)
-    c[:n] = c_c
-    return DiscreteStateSpace(a=a, b=b, c=c)
-
-
-def simulate(model: ModalModel, dynamics: InputDynamics, u: ArrayLike, *, sample_period: float,
-             y0: float = 0.0) -> NDArray[np.float64]:
-    """Simulate the plant open loop from rest at angle ``y0``.
-
-    Args:
-        model: Mechanical modal model.
-        dynamics: Input delay and amplifier lag.
-        u: Commanded current [A], shape (N,) or (M, N) for M records.
-        sample_period: Sampling period [s].
-        y0: Start angle [deg].
-
-    Returns:
-        The angle y [deg], same shape as ``u``.
-    """
-    u_arr = np.asarray(u, dtype=float)
-    if u_arr.ndim not in (1, 2):
-        raise InvalidDataError('u must be one record (N,) or records (M, N)')
-    if not np.all(np.isfinite(u_arr)):
-        raise InvalidDataError('u contains NaN or Inf')
-    ss = discretize(model, dynamics, sample_period)
-    records = np.atleast_2d(u_arr)
-    x = np.zeros((ss.a.shape[0], records.shape[0]))
-    y = np.empty_like(records)
-    for k in range(records.shape[1]):
-        y[:, k] = ss.c @ x
-        x = ss.a @ x + np.outer(ss.b, records[:, k])
-    y += y0
-    return y.reshape(u_arr.shape)
+    if outer_ratio is not None and not outer_ratio > 1:
+        raise ConfigurationError(f'outer_ratio must be > 1, got {outer_ratio}')
+    w = reference.natural_frequencies
+    if not w:
+        raise ConfigurationError('reference model has no resonant modes')
+    if outer_ratio is None and len(w) == 1:
+        outer_ratio = 1.3
+    low_ratio = float(np.sqrt(w[1] / w[0])) if outer_ratio is None else outer_ratio
+    high_ratio = float(np.sqrt(w[-1] / w[-2])) if outer_ratio is None else outer_ratio
+    edges = [w[0] / low_ratio, *(float(np.sqrt(a * b)) for a, b in pairwise(w)),
+             w[-1] * high_ratio]
+    if sample_period is not None:
+        edges[-1] = min(edges[-1], 0.98 * np.pi / sample_period)
+    return tuple((float(lo), float(hi)) for lo, hi in pairwise(edges))
 
 
 def relative_errors(identified: ModalModel,
-                    reference: ModalModel = REFERENCE_MODEL) -> dict[str, float]:
-    """Return (identified - reference) / reference for every parameter, by name."""
+                    reference: ModalModel | None = None) -> dict[str, float]:
+    """Return (identified - reference) / reference for every parameter, by name.
+
+    The reference defaults to the paper's Table I.
+    """
+    if reference is None:
+        from galvo_sysid.model.paper import REFERENCE_MODEL
+
+        reference = REFERENCE_MODEL
     ref = reference.parameters()
     ident = identified.parameters()
     if ref.keys() != ident.keys():

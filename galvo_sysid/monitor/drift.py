@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.model.modal import REFERENCE_MODEL, ModalModel
+from galvo_sysid.model import REFERENCE_MODEL, ModalModel
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence

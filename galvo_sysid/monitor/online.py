@@ -84,7 +84,7 @@ def _warm_up() -> bool:
     import numpy as np
 
     from galvo_sysid.ident.identify import identify_window
-    from galvo_sysid.model.modal import REFERENCE_MODEL, TAU, InputDynamics, simulate
+    from galvo_sysid.model import REFERENCE_MODEL, TAU, InputDynamics, simulate
 
     k = np.arange(256, dtype=float)
     pulse = np.where(k < 8, 0.0, np.where(k < 58, 1.0, np.where(k < 108, -1.0, 0.0)))

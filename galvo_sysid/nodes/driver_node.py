@@ -1,8 +1,10 @@
 """``galvo_driver``: a simulated galvano scanner doing positioning moves, published live.
 
-Wraps :class:`galvo_sysid.sim.simulator.GalvoSimulator` (closed loop, Table I plant, input
-dynamics, noise, quantised encoder). Moves follow the paper's schedule: for each angle of
-``angles``, ``moves_per_angle`` moves alternating forward (+a) and return (-a). Each move is
+Wraps :class:`galvo_sysid.sim.simulator.GalvoSimulator` (closed loop, the plant of the model
+file ``model``, default the paper's Table I scanner; input dynamics, noise, quantised
+encoder; the positioning controller designed from the model). Moves follow the paper's
+schedule: for each angle of ``angles``, ``moves_per_angle`` moves alternating forward (+a)
+and return (-a). Each move is
 published on ``galvo/current`` and ``galvo/encoder`` (``MoveSamples``, same move_id, stamp =
 the move's first sample: ``stamp_origin`` + simulated time).
 
@@ -30,8 +32,9 @@ from rclpy.node import Node
 
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError
 from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields
-from galvo_sysid.model.effects import Drift, PlantEffects, PlantSpec, StepChange
-from galvo_sysid.model.modal import PAPER_ANGLES
+from galvo_sysid.model import PAPER_ANGLES, Drift, PlantModel, StepChange, load_model
+from galvo_sysid.model.effects import Effect, effects_from_list
+from galvo_sysid.model.physics import check_parameter_name
 from galvo_sysid.nodes.framework import (
     CURRENT_TOPIC,
     ENCODER_TOPIC,
@@ -42,18 +45,22 @@ from galvo_sysid.nodes.framework import (
     moves_qos,
     run_node,
 )
-from galvo_sysid.sim.simulator import GalvoSimulator
+from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig
 
 if TYPE_CHECKING:
     from collections.abc import Iterator, Sequence
 
     from galvo_sysid.sim.simulator import Move
 
-__all__ = ['PARAMETERS', 'DriverNode', 'PlantChanges', 'main']
-
-_PLANT_NAMES = tuple(PlantSpec().parameters())
+__all__ = ['PARAMETERS', 'DriverNode', 'PlantChanges', 'main', 'simulator_config']
 
 PARAMETERS = (
+    ParamSpec('model', '', 'plant-model file of the simulated scanner ("": the packaged model of '
+              "the paper's scanner)", read_only=True),
+    ParamSpec('record_length', 0, "recorded samples per move (0: the model's)", 0, 1_000_000,
+              read_only=True),
+    ParamSpec('dwell_length', -1, 'samples between a record and the next move (-1: the '
+              "model's)", -1, 1_000_000, read_only=True),
     ParamSpec('angles', list(PAPER_ANGLES), 'rotation angles of the schedule [deg] (positive; '
               'each is moved forward then back)', 1e-6, 20.0),
     ParamSpec('moves_per_angle', 200, 'moves per angle, alternating +a/-a (even)', 2, 1_000_000),
@@ -70,27 +77,30 @@ PARAMETERS = (
               read_only=True),
     ParamSpec('qos_reliability', 'reliable', 'publisher QoS reliability (best_effort reaches '
               'only best-effort subscribers)', choices=RELIABILITY, read_only=True),
-    ParamSpec('drift.parameter', '', 'plant parameter that drifts ("" for none)',
-              choices=('', *_PLANT_NAMES)),
+    ParamSpec('drift.parameter', '', 'plant parameter that drifts ("" for none; k0, k<i>, '
+              'omega_<i>, zeta_<i>, lag_time_constant, dead_time, friction_current, '
+              'pivot_frequency, gain_ratio, current_limit)'),
     ParamSpec('drift.rate', 0.0, 'relative change per drift.unit (e.g. -0.001)', -1.0, 1.0),
     ParamSpec('drift.unit', 'second', 'unit of the drift rate', choices=('second', 'move')),
-    ParamSpec('step.parameter', '', 'plant parameter that steps ("" for none)',
-              choices=('', *_PLANT_NAMES)),
+    ParamSpec('step.parameter', '', 'plant parameter that steps ("" for none; names as '
+              'drift.parameter)'),
     ParamSpec('step.factor', 1.0, 'the step multiplies the parameter by this', 0.01, 100.0),
     ParamSpec('step.at_move', -1, 'move index of the step (-1: the next move)', -1, 2**62),
-    ParamSpec('effects', '[]', 'physical effects as JSON: [{"effect": name, "parameters": '
-              '{...}}, ...] (see galvo_sysid.model.effects)'),
+    ParamSpec('effects', '[]', "physical effects added to the model's, as JSON: [{\"effect\": "
+              'name, "parameters": {...}}, ...] (see galvo_sysid.model.effects)'),
 )
 
 
-def _effects(text: str) -> PlantEffects:
+def _effects(text: str) -> tuple[Effect, ...]:
+    if len(text) > 100_000:
+        raise ConfigurationError('effects: longer than 100000 characters')
     try:
         items = json.loads(text or '[]')
     except json.JSONDecodeError as err:
-        raise ConfigurationError(f'effects is not valid JSON: {err}') from err
-    if not isinstance(items, list):
-        raise ConfigurationError('effects must be a JSON list')
-    return PlantEffects.from_list(items)
+        raise ConfigurationError(f'effects is not valid JSON: {err}') from None
+    except RecursionError:
+        raise ConfigurationError('effects: JSON nested too deeply') from None
+    return effects_from_list(items, where='effects')
 
 
 def _validate(values: dict[str, Any]) -> str | None:
@@ -102,9 +112,26 @@ def _validate(values: dict[str, Any]) -> str | None:
         return 'angles must stay within the +-20 deg range'
     try:
         _effects(values['effects'])
+        for key in ('drift.parameter', 'step.parameter'):
+            if values[key]:
+                check_parameter_name(values[key])
     except GalvoSysidError as err:
         return str(err)
     return None
+
+
+def simulator_config(values: dict[str, Any]) -> SimulatorConfig:
+    """The simulator of the driver's parameters: the model file, record and dwell lengths.
+
+    Raises:
+        ConfigurationError: Bad model file or lengths (a model without a stable controller
+            design included).
+        InvalidDataError: The model file cannot be read.
+    """
+    model = load_model(values['model'] or None)
+    record = values['record_length'] or None
+    dwell = None if values['dwell_length'] < 0 else values['dwell_length']
+    return SimulatorConfig(plant=model, record_length=record, dwell_length=dwell)
 
 
 class PlantChanges:
@@ -112,17 +139,16 @@ class PlantChanges:
 
     def __init__(self, simulator: GalvoSimulator) -> None:
         self.sim = simulator
-        self._base = simulator.plant
+        self._base: PlantModel = simulator.config.plant
 
     def apply(self, values: dict[str, Any], changed: set[str]) -> list[str]:
         """Apply the changes named in ``changed``; return what was done, one line each."""
         sim = self.sim
         done: list[str] = []
         if 'effects' in changed:
-            effects = _effects(values['effects'])
-            sim.set_plant(PlantSpec(model=self._base.model, dynamics=self._base.dynamics,
-                                    effects=effects))
-            active = effects.to_list()
+            plant = self._base.with_effects(_effects(values['effects']))
+            sim.set_plant(plant)
+            active = [e.to_dict() for e in plant.effects]
             done.append(f'plant effects: {json.dumps(active) if active else "none"}')
         if changed & {'drift.parameter', 'drift.rate', 'drift.unit', 'step.parameter',
                       'step.factor', 'step.at_move'}:
@@ -154,7 +180,8 @@ class DriverNode(Node):
         self._lock = threading.Lock()
         self.params = ParameterSet(self, PARAMETERS, validate=_validate, apply=self._apply)
         v = self.params.values
-        self.sim = GalvoSimulator(seed=v['seed'])
+        self.sim = GalvoSimulator(config=simulator_config(v), seed=v['seed'])
+        self.sim.check_angles(v['angles'])
         self.changes = PlantChanges(self.sim)
         for line in self.changes.apply(v, {n for n in v if n.startswith(('drift.', 'step.',
                                                                           'effects'))}):
@@ -228,7 +255,7 @@ class DriverNode(Node):
             cfg = self.sim.config
             rate = float(self.params.values['rate_factor'])
             if rate > 0:  # publish when the move has happened (its record is complete)
-                due = wall0 + (move.stamp - sim0 + cfg.record_length * cfg.sample_period) / rate
+                due = wall0 + (move.stamp - sim0 + cfg.record * cfg.sample_period) / rate
                 delay = due - time.monotonic()
                 if delay > 0 and self._stop.wait(delay):
                     break

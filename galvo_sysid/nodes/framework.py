@@ -19,7 +19,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import try_shutdown
 
-from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -222,8 +222,8 @@ def run_node(factory: Callable[[], Node], *, args: Sequence[str] | None = None,
             executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (ConfigurationError, ParameterException) as err:
-        print(f'error: {err}', file=sys.stderr)
+    except (GalvoSysidError, ParameterException) as err:
+        print(f'error: {" ".join(str(err).split())}', file=sys.stderr)
         code = 2
     finally:
         if node is not None:

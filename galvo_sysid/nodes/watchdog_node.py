@@ -29,7 +29,7 @@ from galvo_sysid.interfaces.messages import (
     result_from_msg,
     stamp_to_seconds,
 )
-from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.model import REFERENCE_MODEL
 from galvo_sysid.monitor.drift import (
     DEFAULT_TOLERANCES,
     ERROR,

@@ -8,40 +8,43 @@ the bilinear transform (prewarped at each notch and low-pass frequency)::
 
     C(z) = K * lead(z) * PI(z) * [low-pass(z)] * prod_i notch_i(z)
 
-The gain ``K`` puts the loop's gain crossover at ``crossover_frequency`` on the nominal plant
-(Table I modes with one sample of computation delay and the amplifier lag). The default design
-(800 Hz crossover, lead ratio 4, integral corner 80 Hz, notches of depth 0.02/0.3 at the three
-nominal resonances) has about 15 dB gain margin and 46 deg phase margin on the nominal plant;
-:func:`loop_margins` computes them with python-control on the discrete loop including the
-delay and the lag.
+The gain ``K`` puts the loop's gain crossover at ``crossover_frequency`` on the design model
+(a :class:`~galvo_sysid.model.plant.PlantModel`: its modes, computation delay and amplifier
+lag). Without an explicit configuration the design follows the model
+(:func:`auto_controller_config`): the crossover is the smaller of a fourteenth of the first
+resonance (a usual galvo tuning rule; the notches take care of the resonances) and the
+frequency where the equivalent input delay costs 0.15 rad (8.6 deg) of phase, also kept an
+eighth of Nyquist below, rounded down to two significant digits; lead ratio 4, integral
+corner at a tenth of the crossover, notches of depth 0.02/0.3 at every mode. The margins are
+checked with python-control (:func:`loop_margins`, on the discrete loop including the delay
+and the lag): at least 6 dB and 30 deg, else the crossover is lowered step by step; a model
+for which no such design exists is refused with :class:`ConfigurationError`. For the paper's
+scanner this gives 800 Hz, about 15 dB gain margin and 46 deg phase margin.
 """
 
 from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.model.modal import (
-    REFERENCE_MODEL,
-    TAU,
-    DiscreteStateSpace,
-    InputDynamics,
-    ModalModel,
-)
-from galvo_sysid.model.modal import discretize as discretize_plant
+from galvo_sysid.model.dynamics import DiscreteStateSpace
+from galvo_sysid.model.dynamics import discretize as discretize_plant
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray
+
+    from galvo_sysid.model.plant import PlantModel
 
 __all__ = [
     'Controller',
     'ControllerConfig',
     'LoopMargins',
+    'auto_controller_config',
     'closed_loop_poles',
     'design_controller',
     'loop_frequency_response',
@@ -194,25 +197,78 @@ def _plant_response(plant: DiscreteStateSpace, omega: NDArray[np.float64],
     return np.asarray(x @ plant.c, dtype=np.complex128)
 
 
-def design_controller(model: ModalModel = REFERENCE_MODEL,
-                      dynamics: InputDynamics | None = None, *,
-                      sample_period: float = TAU,
+MIN_GAIN_MARGIN_DB = 6.0
+"""Smallest gain margin an automatic design accepts [dB]."""
+
+MIN_PHASE_MARGIN = 30.0
+"""Smallest phase margin an automatic design accepts [deg]."""
+
+
+def _two_digits_down(x: float) -> float:
+    """Round down to two significant digits (800 Hz, not 807.8 Hz)."""
+    scale = 10.0 ** (math.floor(math.log10(x)) - 1)
+    return math.floor(x / scale * (1 + 1e-12)) * scale
+
+
+def auto_controller_config(model: PlantModel) -> ControllerConfig:
+    """The first automatic design of a model's controller (see the module docs).
+
+    Raises:
+        ConfigurationError: The model leaves no room for a crossover.
+    """
+    delay = model.equivalent_delay
+    limits = [1.0 / model.sample_period / 2 / 8]      # an eighth of Nyquist [Hz]
+    if model.n_modes:
+        limits.append(model.modal.natural_frequencies[0] / (2 * math.pi) / 14)
+    if delay > 0:
+        limits.append(0.15 / (2 * math.pi * delay))
+    crossover = min(limits)
+    if not (math.isfinite(crossover) and crossover > 0):
+        raise ConfigurationError(f'no crossover frequency for this model ({model})')
+    return ControllerConfig(crossover_frequency=_two_digits_down(crossover))
+
+
+def design_controller(model: PlantModel, *,
                       config: ControllerConfig | None = None) -> Controller:
-    """Design the feedback controller for a nominal plant.
+    """Design the feedback controller for a nominal plant model.
 
     Args:
-        model: Design (nominal) model; its resonances get the notches.
-        dynamics: Design input dynamics (default: one sample delay plus the 0.6 tau lag).
-        sample_period: Controller sampling period [s].
-        config: Design parameters.
+        model: Design (nominal) model; its modes get the notches, its input dynamics and
+            sample period are the loop's.
+        config: Design parameters; None designs from the model (:func:`auto_controller_config`
+            with the crossover lowered until the margins hold, see the module docs).
 
     Returns:
         The discrete controller with the gain set for the requested crossover.
+
+    Raises:
+        ConfigurationError: Bad parameters, or (automatic design) no stable design with the
+            required margins.
     """
-    cfg = config or ControllerConfig()
-    dyn = dynamics or InputDynamics()
-    if not (math.isfinite(sample_period) and sample_period > 0):
-        raise ConfigurationError('sample_period must be positive and finite')
+    if config is not None:
+        return _design(model, config)
+    cfg = auto_controller_config(model)
+    plant = discretize_plant(model.modal, model.dynamics, model.sample_period)
+    tried = []
+    for _ in range(12):
+        controller = _design(model, cfg)
+        m = loop_margins(controller, plant)
+        tried.append(f'{cfg.crossover_frequency:g} Hz: gain margin {m.gain_margin_db:.1f} dB, '
+                     f'phase margin {m.phase_margin:.1f} deg'
+                     + ('' if m.closed_loop_stable else ', unstable'))
+        if (m.closed_loop_stable and m.gain_margin_db >= MIN_GAIN_MARGIN_DB
+                and m.phase_margin >= MIN_PHASE_MARGIN):
+            return controller
+        cfg = replace(cfg, crossover_frequency=_two_digits_down(0.8 * cfg.crossover_frequency))
+    raise ConfigurationError(
+        f'no stable positioning controller with {MIN_GAIN_MARGIN_DB:g} dB / '
+        f'{MIN_PHASE_MARGIN:g} deg margins for this model ({model}); tried '
+        + '; '.join(tried[:3]) + (' ...' if len(tried) > 3 else ''))
+
+
+def _design(model: PlantModel, cfg: ControllerConfig) -> Controller:
+    """The controller of one configuration (gain set for its crossover)."""
+    sample_period = model.sample_period
     nyquist = math.pi / sample_period
     wc = 2 * math.pi * cfg.crossover_frequency
     if wc * cfg.lead_ratio >= nyquist:
@@ -228,7 +284,7 @@ def design_controller(model: ModalModel = REFERENCE_MODEL,
             raise ConfigurationError('lowpass_frequency must be below Nyquist')
         secs.append(_bilinear((wl * wl,), (1.0, 2 * cfg.lowpass_damping * wl, wl * wl),
                               sample_period, prewarp=wl))
-    notches = (model.natural_frequencies if cfg.notch_frequencies is None
+    notches = (model.modal.natural_frequencies if cfg.notch_frequencies is None
                else cfg.notch_frequencies)
     for w in notches:
         if w >= nyquist:
@@ -236,7 +292,7 @@ def design_controller(model: ModalModel = REFERENCE_MODEL,
         secs.append(_bilinear((1.0, 2 * cfg.notch_depth * w, w * w),
                               (1.0, 2 * cfg.notch_width * w, w * w), sample_period, prewarp=w))
     unit = Controller(gain=1.0, sections=tuple(secs), sample_period=sample_period)
-    plant = discretize_plant(model, dyn, sample_period)
+    plant = discretize_plant(model.modal, model.dynamics, sample_period)
     om = np.array([wc])
     loop = unit.frequency_response(om) * _plant_response(plant, om, sample_period)
     return Controller(gain=float(1 / abs(loop[0])), sections=tuple(secs),
@@ -263,7 +319,7 @@ def closed_loop_poles(controller: Controller, plant: DiscreteStateSpace) -> NDAr
     return np.asarray(np.linalg.eigvals(a), dtype=np.complex128)
 
 
-def loop_margins(controller: Controller, plant: DiscreteStateSpace | None = None, *,
+def loop_margins(controller: Controller, plant: DiscreteStateSpace, *,
                  points: int = 4000) -> LoopMargins:
     """Gain, phase and stability margins of the discrete loop with delay and lag included.
 
@@ -273,7 +329,7 @@ def loop_margins(controller: Controller, plant: DiscreteStateSpace | None = None
 
     Args:
         controller: The feedback controller.
-        plant: Discretised plant (with its input dynamics); default the nominal plant.
+        plant: Discretised plant (with its input dynamics).
         points: Number of frequency points.
 
     Returns:
@@ -282,7 +338,7 @@ def loop_margins(controller: Controller, plant: DiscreteStateSpace | None = None
     import control
 
     tau = controller.sample_period
-    p = plant if plant is not None else discretize_plant(REFERENCE_MODEL, InputDynamics(), tau)
+    p = plant
     omega = np.logspace(np.log10(2 * math.pi), np.log10(math.pi / tau * (1 - 1e-6)), points)
     resp = loop_frequency_response(controller, p, omega)
     with warnings.catch_warnings():

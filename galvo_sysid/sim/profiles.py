@@ -4,9 +4,10 @@ A move's acceleration is a jerk-limited bang-bang profile: a trapezoidal pulse (
 ``jerk_time``) accelerating over the first half of the move and its mirror image braking
 over the second half, sampled at the centres of the DSP's sample periods, so the velocity
 returns exactly to zero. The move's duration grows with the square root of the angle (constant
-peak acceleration ``peak_current * k0``) but is at least ``min_duration``: with the defaults
-(1 A peak, 0.2 ms minimum, 30 us ramps) a 0.03 deg move takes 0.2 ms, 0.3 deg 0.62 ms and
-3 deg 1.9 ms, well inside the 5.12 ms record.
+peak acceleration ``peak_current * k0``) but is at least ``min_duration``. The time defaults
+scale with the sample period (20 and 3 samples): on the paper's scanner (10 us; 1 A peak,
+0.2 ms minimum, 30 us ramps) a 0.03 deg move takes 0.2 ms, 0.3 deg 0.62 ms and 3 deg 1.9 ms,
+well inside the 5.12 ms record.
 
 The feed-forward current is u_ff = a_ref / k0 (nominal k0). The position reference the
 feedback compares with is the nominal rigid body's response to u_ff through the nominal input
@@ -24,7 +25,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.model.modal import TAU, InputDynamics, ModalModel, discretize
+from galvo_sysid.model import ModalModel
+from galvo_sysid.model.dynamics import InputDynamics, discretize
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -39,25 +41,33 @@ class ProfileConfig:
     Attributes:
         peak_current: Peak feed-forward current [A]; with the design k0 it sets the peak
             acceleration of the moves that are not limited by ``min_duration``.
-        min_duration: Shortest move [s].
-        jerk_time: Acceleration ramp time [s] (at most a quarter of the move).
+        min_duration: Shortest move [s] (None: 20 sample periods).
+        jerk_time: Acceleration ramp time [s] (at most a quarter of the move; None: 3 sample
+            periods).
         max_fraction: Longest move as a fraction of the recorded samples.
     """
 
     peak_current: float = 1.0
-    min_duration: float = 2e-4
-    jerk_time: float = 3e-5
+    min_duration: float | None = None
+    jerk_time: float | None = None
     max_fraction: float = 0.6
 
     def __post_init__(self) -> None:
         for name in ('peak_current', 'min_duration', 'max_fraction'):
             value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
+            if value is not None and not (math.isfinite(value) and value > 0):
                 raise ConfigurationError(f'{name} must be positive and finite, got {value!r}')
-        if not (math.isfinite(self.jerk_time) and self.jerk_time >= 0):
+        if self.jerk_time is not None and not (math.isfinite(self.jerk_time)
+                                               and self.jerk_time >= 0):
             raise ConfigurationError(f'jerk_time must be >= 0, got {self.jerk_time!r}')
         if self.max_fraction > 1:
             raise ConfigurationError('max_fraction must be <= 1')
+
+    def times(self, sample_period: float) -> tuple[float, float]:
+        """(min_duration, jerk_time) [s] at a sample period (the defaults scale with it)."""
+        scale = sample_period / 1e-5   # the defaults are the paper's 0.2 ms and 30 us at 10 us
+        return (2e-4 * scale if self.min_duration is None else self.min_duration,
+                3e-5 * scale if self.jerk_time is None else self.jerk_time)
 
 
 @dataclass(frozen=True)
@@ -109,7 +119,7 @@ def _rigid_impulse(k0: float, dynamics: InputDynamics, sample_period: float,
 
 
 def move_profile(angle: float, *, length: int, record_length: int, k0: float,
-                 dynamics: InputDynamics | None = None, sample_period: float = TAU,
+                 dynamics: InputDynamics, sample_period: float,
                  config: ProfileConfig | None = None) -> MoveProfile:
     """Design the profile of one move.
 
@@ -134,11 +144,12 @@ def move_profile(angle: float, *, length: int, record_length: int, k0: float,
     peak_acc = cfg.peak_current * k0
     # A bang-bang move (no ramps) is the shortest: start the search there.
     bang_bang = 2 * math.sqrt(abs(angle) / peak_acc) / sample_period
-    samples = max(2, math.ceil(cfg.min_duration / sample_period - 1e-9),
+    min_duration, jerk_time = cfg.times(sample_period)
+    samples = max(2, math.ceil(min_duration / sample_period - 1e-9),
                   math.floor(bang_bang) - 2)
     samples += samples % 2
     while True:
-        shape = _shape(samples, sample_period, cfg.jerk_time)
+        shape = _shape(samples, sample_period, jerk_time)
         unit_distance = sample_period**2 * float(
             np.sum(shape * (samples - np.arange(samples) - 0.5)))
         if abs(angle) / unit_distance <= peak_acc * (1 + 1e-12):
@@ -153,6 +164,6 @@ def move_profile(angle: float, *, length: int, record_length: int, k0: float,
     acc = shape * (angle / unit_distance)
     ff = np.zeros(length)
     ff[:samples] = acc / k0
-    impulse = _rigid_impulse(k0, dynamics or InputDynamics(), sample_period, length)
+    impulse = _rigid_impulse(k0, dynamics, sample_period, length)
     ref = np.convolve(ff[:samples], impulse)[:length]
     return MoveProfile(angle=float(angle), duration=samples, feedforward=ff, reference=ref)

@@ -7,7 +7,8 @@ The loop, sampled at tau = 10 us like the paper's DSP::
     mechanics (Table I modes, [effects]) --> angle y --> + measurement noise --> quantiser
     --> encoder  [recorded]
 
-Plant (:class:`galvo_sysid.model.effects.PlantSpec`): the Table I modal model, one sample of DSP
+Plant (:class:`galvo_sysid.model.plant.PlantModel`, by default the paper's): the Table I modal
+model, one sample of DSP
 computation delay, the current amplifier's first-order lag (0.6 tau), and optional physical
 effects (dead time, unmodelled resonances, Coulomb friction, pivot stiffness, gain change,
 current saturation). The linear part is sampled exactly (zero-order hold, fractional delays
@@ -63,8 +64,8 @@ Two paths compute the same loop:
 ``method='auto'`` (default) uses ``fast`` for linear plants and ``exact`` otherwise. Both
 paths draw the same random numbers, so without quantisation they agree to rounding error.
 
-Plant changes: :class:`galvo_sysid.model.effects.Drift` and
-:class:`galvo_sysid.model.effects.StepChange` (in the config or added on command) and
+Plant changes: :class:`galvo_sysid.model.changes.Drift` and
+:class:`galvo_sysid.model.changes.StepChange` (in the config or added on command) and
 :meth:`GalvoSimulator.set_plant`; the plant is evaluated at the start of each move and held
 during it.
 """
@@ -81,22 +82,12 @@ import numpy as np
 from scipy.signal import lfilter
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.model.effects import (
-    ContinuousPlant,
-    Drift,
-    PlantSpec,
-    StepChange,
-    plant_at,
-    sample_plant,
-)
-from galvo_sysid.model.modal import (
-    PAPER_ANGLES,
-    REFERENCE_MODEL,
-    TAU,
-    DiscreteStateSpace,
-    InputDynamics,
-    ModalModel,
-)
+from galvo_sysid.model.changes import Drift, StepChange, plant_at
+from galvo_sysid.model.dynamics import DiscreteStateSpace
+from galvo_sysid.model.paper import PAPER_ANGLES, PAPER_MODEL
+from galvo_sysid.model.physics import Physics
+from galvo_sysid.model.plant import PlantModel
+from galvo_sysid.model.sampling import ContinuousPlant, sample_plant
 from galvo_sysid.sim.controller import (
     Controller,
     ControllerConfig,
@@ -128,14 +119,14 @@ class SimulatorConfig:
     """Everything the simulator needs; defaults give the paper's nominal scanner.
 
     Attributes:
-        plant: The simulated (true) plant, with effects.
-        design_model: Nominal model the controller, notches and feed-forward are designed on.
-        design_dynamics: Nominal input dynamics of that design.
-        controller: Feedback controller design parameters.
+        plant: The simulated (true) plant, with effects; its sample period is the DSP's.
+        design: Nominal model the controller, notches and feed-forward are designed on
+            (None: the plant without its effects).
+        controller: Feedback controller design parameters (None: designed from the model,
+            see :func:`galvo_sysid.sim.controller.auto_controller_config`).
         profile: Move profile parameters.
-        sample_period: DSP sampling period [s].
-        record_length: Recorded samples per move.
-        dwell_length: Unrecorded samples after each record.
+        record_length: Recorded samples per move (None: the plant model's).
+        dwell_length: Unrecorded samples after each record (None: the plant model's).
         encoder_resolution: Quantisation step of the encoder [deg]; 0 for none.
         encoder_range: Largest angle the scanner may be commanded to [deg].
         measurement_noise_std: RMS of the encoder noise before quantisation [deg].
@@ -148,14 +139,12 @@ class SimulatorConfig:
         substeps: Sub-steps per sample over which saturation is evaluated.
     """
 
-    plant: PlantSpec = field(default_factory=PlantSpec)
-    design_model: ModalModel = REFERENCE_MODEL
-    design_dynamics: InputDynamics = field(default_factory=InputDynamics)
-    controller: ControllerConfig = field(default_factory=ControllerConfig)
+    plant: PlantModel = PAPER_MODEL
+    design: PlantModel | None = None
+    controller: ControllerConfig | None = None
     profile: ProfileConfig = field(default_factory=ProfileConfig)
-    sample_period: float = TAU
-    record_length: int = 512
-    dwell_length: int = 94
+    record_length: int | None = None
+    dwell_length: int | None = None
     encoder_resolution: float = DEFAULT_ENCODER_RESOLUTION
     encoder_range: float = 20.0
     measurement_noise_std: float = 5e-5
@@ -177,9 +166,19 @@ class SimulatorConfig:
                 kind = 'positive' if positive else 'non-negative'
                 raise ConfigurationError(f'{name} must be {kind} and finite, got {value!r}')
 
-        if not isinstance(self.plant, PlantSpec):
-            raise ConfigurationError('plant must be a PlantSpec')
-        check('sample_period', positive=True)
+        if not isinstance(self.plant, PlantModel):
+            raise ConfigurationError('plant must be a PlantModel')
+        if self.design is not None:
+            if not isinstance(self.design, PlantModel):
+                raise ConfigurationError('design must be a PlantModel')
+            if abs(self.design.sample_period - self.plant.sample_period) > \
+                    1e-9 * self.plant.sample_period:
+                raise ConfigurationError('the design model and the plant have different '
+                                         'sample periods')
+        if self.record_length is None:
+            object.__setattr__(self, 'record_length', self.plant.record_length)
+        if self.dwell_length is None:
+            object.__setattr__(self, 'dwell_length', self.plant.dwell_length)
         check('encoder_resolution')
         check('encoder_range', positive=True)
         check('measurement_noise_std')
@@ -190,7 +189,7 @@ class SimulatorConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise ConfigurationError(f'{name} must be a non-negative integer, got {value!r}')
-        if self.record_length < 16:
+        if self.record < 16:
             raise ConfigurationError('record_length must be at least 16 samples')
         if self.substeps < 1:
             raise ConfigurationError('substeps must be >= 1')
@@ -202,9 +201,31 @@ class SimulatorConfig:
             raise ConfigurationError('steps must be StepChange instances')
 
     @property
+    def sample_period(self) -> float:
+        """DSP sampling period [s] (the plant model's)."""
+        return self.plant.sample_period
+
+    @property
+    def design_model(self) -> PlantModel:
+        """The model the controller is designed on."""
+        return self.design if self.design is not None else self.plant.nominal()
+
+    @property
+    def record(self) -> int:
+        """Recorded samples per move."""
+        assert self.record_length is not None
+        return self.record_length
+
+    @property
+    def dwell(self) -> int:
+        """Unrecorded samples after each record."""
+        assert self.dwell_length is not None
+        return self.dwell_length
+
+    @property
     def move_length(self) -> int:
         """Samples per move, recorded plus dwell."""
-        return self.record_length + self.dwell_length
+        return self.record + self.dwell
 
     @property
     def moves_per_second(self) -> float:
@@ -254,9 +275,9 @@ class _State:
 class _Loop:
     """The closed loop for one plant: matrices of both paths (built on first use)."""
 
-    def __init__(self, spec: PlantSpec, controller: Controller, cfg: SimulatorConfig) -> None:
+    def __init__(self, spec: Physics, controller: Controller, cfg: SimulatorConfig) -> None:
         self.spec = spec
-        sp = sample_plant(spec, sample_period=cfg.sample_period, substeps=cfg.substeps)
+        sp = sample_plant(spec, substeps=cfg.substeps)
         self.sp = sp
         cp = sp.continuous
         ac, bc, cc, dc = controller.state_space()
@@ -265,7 +286,7 @@ class _Loop:
         nh = w + 1                                # register u[k-1] .. u[k-w-1]
         nz = nx + nh + nc
         self.nx, self.nh, self.nc, self.nz = nx, nh, nc, nz
-        gain = spec.effects.gain_ratio
+        gain = spec.gain_ratio
         # z' = az z + be e + bff uff + bn n + gd dnl ; u = cu z + dc e + uff
         cu = np.zeros(nz)
         cu[nx + nh:] = cc
@@ -315,7 +336,7 @@ class _Loop:
         # exactly. A sub-step where i crosses the limit holds the clipped part at its midpoint.
         substeps = sp.substeps
         h = cfg.sample_period / substeps
-        lag = spec.dynamics.lag_time_constant
+        lag = spec.lag_time_constant
 
         def coef(t: float, *, closed: bool) -> tuple[float, float, float]:
             if lag > 0:
@@ -353,12 +374,12 @@ class _Loop:
         pick[:, 1, 1] = 1.0
         pick[:, 2, 2] = 1.0
         self.sat_r_full = np.einsum('jnk,jkl->nl', sat_r, pick)
-        self.gd_sum_limit = gd.sum(axis=1) * gain * spec.effects.current_limit \
-            if math.isfinite(spec.effects.current_limit) else np.zeros(nz)
-        self.limit = spec.effects.current_limit
+        self.gd_sum_limit = gd.sum(axis=1) * gain * spec.current_limit \
+            if math.isfinite(spec.current_limit) else np.zeros(nz)
+        self.limit = spec.current_limit
         self.gain = gain
         # Friction: the rigid-body velocity's row of the update and its gain from d.
-        self.friction = spec.effects.friction_current
+        self.friction = spec.friction_current
         self.v_index = cp.velocity_index
         self.v_gain = float(sp.g_d[cp.velocity_index])
         self.gd_sum = gd.sum(axis=1)
@@ -480,14 +501,13 @@ class GalvoSimulator:
     def __init__(self, *, config: SimulatorConfig | None = None, seed: int = 0) -> None:
         self.config = config or SimulatorConfig()
         cfg = self.config
-        self.controller = design_controller(cfg.design_model, cfg.design_dynamics,
-                                            sample_period=cfg.sample_period,
-                                            config=cfg.controller)
-        self._base = cfg.plant
+        design = cfg.design_model
+        self.controller = design_controller(design, config=cfg.controller)
+        self._base = cfg.plant.physics()
         self._drifts: list[Drift] = list(cfg.drifts)
         self._steps: list[StepChange] = list(cfg.steps)
         self._revision = 0
-        self._loops: OrderedDict[PlantSpec, _Loop] = OrderedDict()
+        self._loops: OrderedDict[Physics, _Loop] = OrderedDict()
         self._profiles: dict[float, MoveProfile] = {}
         self._rng = np.random.default_rng(seed)
         self._a_i = _ar_coefficient(cfg.current_noise_corner, cfg.sample_period)
@@ -505,8 +525,8 @@ class GalvoSimulator:
     # ------------------------------------------------------------------ plant and changes
 
     @property
-    def plant(self) -> PlantSpec:
-        """The plant the next move will run on (drifts and steps applied)."""
+    def plant(self) -> Physics:
+        """The plant the next move will run on (effects, drifts and steps applied)."""
         return plant_at(self._base, time=self._state.time, move=self._state.move_index,
                         drifts=self._drifts, steps=self._steps)
 
@@ -525,13 +545,20 @@ class GalvoSimulator:
         """Moves simulated so far (the next move's id)."""
         return self._state.move_index
 
-    def set_plant(self, plant: PlantSpec) -> None:
-        """Replace the base plant (drifts and steps still apply on top of it)."""
-        if not isinstance(plant, PlantSpec):
-            raise ConfigurationError('plant must be a PlantSpec')
-        self._loop(plant_at(plant, time=self.time, move=self.move_count, drifts=self._drifts,
+    def set_plant(self, plant: PlantModel | Physics) -> None:
+        """Replace the base plant (drifts and steps still apply on top of it).
+
+        The controller stays the one designed at the start (a real scanner's controller does
+        not follow its plant either); the sample period must stay the same.
+        """
+        physics = plant.physics() if isinstance(plant, PlantModel) else plant
+        if not isinstance(physics, Physics):
+            raise ConfigurationError('plant must be a PlantModel or a Physics')
+        if physics.sample_period != self._base.sample_period:
+            raise ConfigurationError('the new plant has another sample period')
+        self._loop(plant_at(physics, time=self.time, move=self.move_count, drifts=self._drifts,
                             steps=self._steps))
-        self._base = plant
+        self._base = physics
         self._revision += 1
 
     def add_drift(self, drift: Drift) -> None:
@@ -554,10 +581,11 @@ class GalvoSimulator:
         self._steps.clear()
         self._revision += 1
 
-    def margins(self, plant: PlantSpec | None = None) -> LoopMargins:
+    def margins(self, plant: PlantModel | Physics | None = None) -> LoopMargins:
         """Loop margins of the controller on a plant's linear part (default: current)."""
-        spec = plant or self.plant
-        sp = sample_plant(spec, sample_period=self.config.sample_period)
+        spec = self.plant if plant is None else (
+            plant.physics() if isinstance(plant, PlantModel) else plant)
+        sp = sample_plant(spec)
         n = sp.phi.shape[0]
         nh = sp.whole + 1
         a = np.zeros((n + nh, n + nh))
@@ -574,7 +602,7 @@ class GalvoSimulator:
         c = np.concatenate([sp.continuous.c, np.zeros(nh)])
         return loop_margins(self.controller, DiscreteStateSpace(a=a, b=b, c=c))
 
-    def _loop(self, spec: PlantSpec) -> _Loop:
+    def _loop(self, spec: Physics) -> _Loop:
         loop = self._loops.get(spec)
         if loop is None:
             loop = _Loop(spec, self.controller, self.config)
@@ -589,11 +617,27 @@ class GalvoSimulator:
         prof = self._profiles.get(angle)
         if prof is None:
             cfg = self.config
-            prof = move_profile(angle, length=cfg.move_length, record_length=cfg.record_length,
-                                k0=cfg.design_model.k0, dynamics=cfg.design_dynamics,
+            design = cfg.design_model
+            prof = move_profile(angle, length=cfg.move_length, record_length=cfg.record,
+                                k0=design.modal.k0, dynamics=design.dynamics,
                                 sample_period=cfg.sample_period, config=cfg.profile)
             self._profiles[angle] = prof
         return prof
+
+    def check_angles(self, angles: Sequence[float]) -> None:
+        """Check that moves of these angles (both signs) can be made on this scanner.
+
+        Raises:
+            ConfigurationError: An angle is not finite, outside the encoder's range, or its
+                move does not fit in the record.
+        """
+        for a in angles:
+            if not (math.isfinite(a) and 0 < abs(a) <= self.config.encoder_range):
+                raise ConfigurationError(
+                    f'angle {a!r} deg: moves must be non-zero and within the '
+                    f'+-{self.config.encoder_range:g} deg range')
+            self._profile(float(a))
+            self._profile(-float(a))
 
     # ------------------------------------------------------------------ moves
 
@@ -625,7 +669,7 @@ class GalvoSimulator:
         i = 0
         while i < len(targets):
             revision = self._revision
-            linear = self.plant.effects.is_linear and self.config.method != 'exact'
+            linear = self.plant.linear and self.config.method != 'exact'
             size = batch if linear else min(batch, 4)  # exact moves gain nothing from batches
             results = self._run(targets[i:i + size])
             committed: _State | None = None
@@ -659,7 +703,7 @@ class GalvoSimulator:
             spec = plant_at(self._base, time=self._state.time, move=self._state.move_index,
                             drifts=self._drifts, steps=self._steps)
             loop = self._loop(spec)
-            exact = cfg.method == 'exact' or not spec.effects.is_linear
+            exact = cfg.method == 'exact' or not spec.linear
             if exact and cfg.method == 'fast':
                 raise ConfigurationError("method 'fast' cannot simulate friction or saturation")
             # Moves that share this plant (no drift or step in between) run as one batch.
@@ -748,7 +792,7 @@ class GalvoSimulator:
 
     def _run_fast(self, loop: _Loop, targets: list[float]) -> list[tuple[Move, _State]]:
         cfg = self.config
-        rec, total = cfg.record_length, cfg.move_length
+        rec, total = cfg.record, cfg.move_length
         block = loop.fast(rec, total)
         n, v, q, rng_states = self._noise(len(targets))
         r, ff, starts = self._inputs(targets, self._state.position)
@@ -765,7 +809,7 @@ class GalvoSimulator:
         return out
 
     def _run_exact(self, loop: _Loop, targets: list[float]) -> list[tuple[Move, _State]]:
-        rec = self.config.record_length
+        rec = self.config.record
         out = []
         for a in targets:
             n, v, _, rng_states = self._noise(1)

@@ -17,7 +17,7 @@ from galvo_sysid.field.bags import (
     stamp_to_ns,
 )
 from galvo_sysid.field.simulate import write_moves
-from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.model import REFERENCE_MODEL
 from galvo_sysid.sim.simulator import GalvoSimulator
 
 SUBCOMMANDS = ('simulate', 'identify', 'info', 'record', 'replay', 'echo')

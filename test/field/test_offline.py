@@ -12,7 +12,7 @@ from galvo_sysid.field.bags import BagReader, SetAside
 from galvo_sysid.field.offline import identify_bag
 from galvo_sysid.field.simulate import simulate_bag
 from galvo_sysid.ident.identify import identify_joint, pool_results
-from galvo_sysid.model.modal import TAU
+from galvo_sysid.model import TAU
 from galvo_sysid.monitor.drift import DriftMonitor
 from galvo_sysid.monitor.online import fit_window
 from galvo_sysid.monitor.pairing import MoveWindower

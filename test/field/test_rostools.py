@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from galvo_sysid.field.live import format_yaml, message_to_dict
-from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.model import REFERENCE_MODEL
 
 if TYPE_CHECKING:
     from collections.abc import Iterator

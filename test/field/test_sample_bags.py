@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from galvo_sysid.field.offline import identify_bag
-from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.model import REFERENCE_MODEL
 
 BAGS = Path(__file__).resolve().parents[2] / 'bags'
 

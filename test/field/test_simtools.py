@@ -10,8 +10,8 @@ import pytest
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.field.bags import BagReader
 from galvo_sysid.field.offline import identify_bag
-from galvo_sysid.field.simulate import parse_drift, parse_effect, parse_step, simulate_bag
-from galvo_sysid.model.effects import Drift, StepChange
+from galvo_sysid.field.simulate import parse_drift, parse_step, simulate_bag
+from galvo_sysid.model import Drift, StepChange
 from galvo_sysid.monitor.pairing import MoveHalf
 from galvo_sysid.sim.simulator import GalvoSimulator
 
@@ -25,21 +25,13 @@ def test_parse_drift() -> None:
             parse_drift(bad)
 
 
-def test_parse_step_and_effect() -> None:
+def test_parse_step() -> None:
     assert parse_step('k0=0.9@400') == StepChange('k0', 0.9, at=400, unit='move',
                                                   relative=True)
     assert parse_step('omega_2=1.01@1.5s') == StepChange('omega_2', 1.01, at=1.5,
                                                          unit='second', relative=True)
     with pytest.raises(ConfigurationError):
         parse_step('k0=0.9')
-    assert parse_effect('coulomb_friction:friction_current=0.05') == (
-        'coulomb_friction', {'friction_current': 0.05})
-    assert parse_effect('unmodeled_resonance:natural_frequency=3e4, damping_ratio=0.01,'
-                        'residue=1e5') == ('unmodeled_resonance', {
-                            'natural_frequency': 3e4, 'damping_ratio': 0.01, 'residue': 1e5})
-    for bad in (':x=1', 'gain_change:gain_ratio', 'gain_change:gain_ratio=big'):
-        with pytest.raises(ConfigurationError):
-            parse_effect(bad)
 
 
 def test_bag_holds_the_simulator_moves(tmp_path: Path) -> None:

@@ -18,7 +18,7 @@ from galvo_sysid.ident.delay import (
     paper_delay_filter,
 )
 from galvo_sysid.ident.preprocess import average_records
-from galvo_sysid.model.modal import TAU, InputDynamics
+from galvo_sysid.model import TAU, InputDynamics
 
 T = TAU
 

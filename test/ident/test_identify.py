@@ -16,12 +16,13 @@ from galvo_sysid.ident.identify import (
     identify_window,
     pool_results,
 )
-from galvo_sysid.model.modal import PSI, REFERENCE_MODEL, TAU, ModalModel, relative_errors
+from galvo_sysid.model import PSI, REFERENCE_MODEL, TAU, ModalModel, relative_errors
 from galvo_sysid.sim.simulator import simulate_window
 
 FIELDS = ('target_angle', 'moves', 'input_delay', 'lag_time_constant', 'k0', 'residues',
           'natural_frequencies', 'damping_ratios', 'k0_std', 'residues_std',
-          'natural_frequencies_std', 'damping_ratios_std', 'fit_percent', 'method')
+          'natural_frequencies_std', 'damping_ratios_std', 'fit_percent', 'method',
+          'resolved')
 
 
 @pytest.fixture(scope='module')

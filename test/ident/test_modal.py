@@ -22,7 +22,7 @@ from galvo_sysid.ident.decompose import (
     simulate_zoh,
     zoh_mode_numerator,
 )
-from galvo_sysid.model.modal import (
+from galvo_sysid.model import (
     REFERENCE_MODEL,
     TAU,
     InputDynamics,
@@ -192,7 +192,7 @@ def test_order_too_low_raises():
 
 
 def test_default_bands_partition_around_the_modes():
-    bands = default_bands()
+    bands = default_bands(REFERENCE_MODEL)
     w = REFERENCE_MODEL.natural_frequencies
     assert len(bands) == 3
     for (lo, hi), wi in zip(bands, w, strict=True):
@@ -202,10 +202,10 @@ def test_default_bands_partition_around_the_modes():
     # outer bands mirror the inner edges (symmetric in log frequency)
     assert w[0] / bands[0][0] == pytest.approx(bands[0][1] / w[0])
     assert bands[2][1] / w[2] == pytest.approx(w[2] / bands[2][0])
-    assert default_bands(outer_ratio=1.3)[2][1] == pytest.approx(1.3 * w[2])
-    assert default_bands(sample_period=1.6e-5)[-1][1] <= 0.98 * np.pi / 1.6e-5
+    assert default_bands(REFERENCE_MODEL, outer_ratio=1.3)[2][1] == pytest.approx(1.3 * w[2])
+    assert default_bands(REFERENCE_MODEL, sample_period=1.6e-5)[-1][1] <= 0.98 * np.pi / 1.6e-5
     with pytest.raises(ConfigurationError):
-        default_bands(outer_ratio=0.9)
+        default_bands(REFERENCE_MODEL, outer_ratio=0.9)
     with pytest.raises(ConfigurationError):
         modal_decomposition(_as_arx(*_zoh_tf(REFERENCE_MODEL)), bands=[(5e4, 4e4)])
 

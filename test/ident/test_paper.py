@@ -10,6 +10,8 @@ test/openloop_data.py).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from openloop_data import open_loop_window
@@ -23,17 +25,16 @@ from galvo_sysid.ident.paper import (
     paper_pipeline,
     relative_error_table,
 )
-from galvo_sysid.model.effects import PlantEffects, PlantSpec
-from galvo_sysid.model.modal import PAPER_TABLE_II, PSI, TAU, InputDynamics
+from galvo_sysid.model import PAPER_MODEL, PAPER_TABLE_II, PSI, TAU, InputDynamics
 from galvo_sysid.sim.simulator import SimulatorConfig, simulate_window
 
 T = TAU
 PURE_DELAY = InputDynamics(computation_delay=1, lag_time_constant=0.0, dead_time=0.6 * T)
 NOISE_FREE = {'current_noise': 0.0, 'encoder_noise': 0.0, 'quantum': 0.0}
 QUIET = {'measurement_noise_std': 0.0, 'current_noise_std': 0.0, 'encoder_resolution': 0.0}
-# The simulator takes a dead time as a plant effect (PlantEffects.dead_time).
-PURE_DELAY_PLANT = PlantSpec(dynamics=InputDynamics(computation_delay=1, lag_time_constant=0.0),
-                             effects=PlantEffects(dead_time=0.6 * T))
+# A plant whose input dynamics are a pure 1.6 T delay (the controller still designed for the
+# paper's scanner).
+PURE_DELAY_PLANT = replace(PAPER_MODEL, dynamics=PURE_DELAY)
 
 
 @pytest.fixture(scope='module')
@@ -50,8 +51,8 @@ def _errors(result):
 def test_noise_free_matching_delay_recovers_table_i(source):
     """A plant whose input dynamics really are a 1.6 T delay: the paper's model holds."""
     if source == 'closed loop':
-        cur, enc = simulate_window(PSI, moves=3, config=SimulatorConfig(plant=PURE_DELAY_PLANT,
-                                                                        **QUIET))
+        config = SimulatorConfig(plant=PURE_DELAY_PLANT, design=PAPER_MODEL, **QUIET)
+        cur, enc = simulate_window(PSI, moves=3, config=config)
     else:
         cur, enc = open_loop_window(PSI, moves=3, dynamics=PURE_DELAY, **NOISE_FREE)
     res = paper_pipeline(cur, enc, sample_period=T, solver='qr')

@@ -15,7 +15,7 @@ from galvo_sysid.ident.refine import (
     refine_fit,
     second_difference,
 )
-from galvo_sysid.model.modal import (
+from galvo_sysid.model import (
     PAPER_TABLE_II,
     PSI,
     REFERENCE_MODEL,

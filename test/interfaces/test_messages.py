@@ -26,7 +26,7 @@ from galvo_sysid.interfaces.messages import (
     stamp_to_seconds,
     verdict_from_msg,
 )
-from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.model import REFERENCE_MODEL
 from galvo_sysid.monitor.drift import DriftMonitor
 
 RESULT = IdentificationResult(

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.model import REFERENCE_MODEL
 from galvo_sysid.monitor.drift import (
     DEFAULT_NOISE_FLOOR,
     DEFAULT_TOLERANCES,

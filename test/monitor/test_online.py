@@ -11,7 +11,7 @@ import pytest
 
 from galvo_sysid.errors import IdentificationError
 from galvo_sysid.ident.identify import IdentificationResult
-from galvo_sysid.model.modal import REFERENCE_MODEL, relative_errors
+from galvo_sysid.model import REFERENCE_MODEL, relative_errors
 from galvo_sysid.monitor.drift import ERROR, OK, STALE, DriftMonitor
 from galvo_sysid.monitor.online import (
     FitOutcome,

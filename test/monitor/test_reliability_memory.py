@@ -26,7 +26,7 @@ from ros_graph import MOVES_QOS, RESULTS_QOS, Graph, counters, move_messages, rs
 
 from galvo_sysid.errors import InvalidDataError
 from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields
-from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.model import REFERENCE_MODEL
 from galvo_sysid.monitor.online import FitOutcome, SysidTask
 from galvo_sysid.monitor.pairing import MoveHalf, MoveWindower
 from galvo_sysid.sim.simulator import GalvoSimulator

@@ -40,7 +40,7 @@ from galvo_sysid.ident.identify import IdentificationResult, identify_window, po
 from galvo_sysid.ident.paper import paper_pipeline
 from galvo_sysid.ident.preprocess import validate_records
 from galvo_sysid.interfaces.messages import move_half_from_msg, result_from_msg
-from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.model import REFERENCE_MODEL
 from galvo_sysid.monitor.drift import DriftMonitor
 from galvo_sysid.monitor.online import FitOutcome, SysidTask
 from galvo_sysid.monitor.pairing import MoveHalf, MoveWindower, Rejection, Window

@@ -29,7 +29,7 @@ from pathlib import Path
 import pytest
 from ros_graph import Proc
 
-from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.model import REFERENCE_MODEL
 
 OMEGA_1 = REFERENCE_MODEL.natural_frequencies[0]
 FACTOR = 0.98  # the remote plant's omega_1 is 2 % low: the watchdog must flag it

@@ -20,7 +20,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from galvo_sysid_msgs.msg import ModalParameters
 from ros_graph import RESULTS_QOS, Graph, counters
 
-from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.model import REFERENCE_MODEL
 
 if TYPE_CHECKING:
     pass

@@ -26,7 +26,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from ros_graph import Graph
 
 from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields
-from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.model import REFERENCE_MODEL
 from galvo_sysid.sim.simulator import GalvoSimulator
 
 if TYPE_CHECKING:

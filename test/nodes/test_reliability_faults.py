@@ -47,8 +47,7 @@ from ros_graph import (
 )
 
 from galvo_sysid.interfaces.messages import fill_header, move_half_from_msg, stamp_to_seconds
-from galvo_sysid.model.effects import StepChange
-from galvo_sysid.model.modal import REFERENCE_MODEL
+from galvo_sysid.model import REFERENCE_MODEL, StepChange
 from galvo_sysid.monitor.pairing import MoveWindower
 from galvo_sysid.sim.simulator import GalvoSimulator
 

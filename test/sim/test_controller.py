@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.model.modal import REFERENCE_MODEL, TAU, InputDynamics, discretize
+from galvo_sysid.model import PAPER_MODEL, REFERENCE_MODEL, TAU, InputDynamics, discretize
 from galvo_sysid.sim.controller import (
     Controller,
     ControllerConfig,
+    auto_controller_config,
     closed_loop_poles,
     design_controller,
     loop_frequency_response,
@@ -22,7 +23,7 @@ from galvo_sysid.sim.controller import (
 
 @pytest.fixture(scope='module')
 def controller() -> Controller:
-    return design_controller()
+    return design_controller(PAPER_MODEL)
 
 
 def _plant(model=REFERENCE_MODEL, dynamics=None):
@@ -30,7 +31,7 @@ def _plant(model=REFERENCE_MODEL, dynamics=None):
 
 
 def test_nominal_margins_are_positive_and_reasonable(controller: Controller) -> None:
-    m = loop_margins(controller)
+    m = loop_margins(controller, _plant())
     assert m.closed_loop_stable
     assert m.gain_crossover_frequency == pytest.approx(800.0, rel=1e-3)
     assert 10.0 < m.gain_margin_db < 25.0
@@ -39,7 +40,7 @@ def test_nominal_margins_are_positive_and_reasonable(controller: Controller) -> 
 
 
 def test_margins_agree_with_a_direct_reading_of_the_loop(controller: Controller) -> None:
-    m = loop_margins(controller)
+    m = loop_margins(controller, _plant())
     plant = _plant()
     # Phase margin: phase at |L| = 1, found by bisection on the loop gain.
     lo, hi = 2 * math.pi * 200, 2 * math.pi * 3000
@@ -96,15 +97,15 @@ def test_robust_to_plant_variations(controller: Controller) -> None:
 
 def test_too_much_gain_is_flagged_unstable(controller: Controller) -> None:
     hot = dataclasses.replace(controller, gain=controller.gain * 10)
-    m = loop_margins(hot)
+    m = loop_margins(hot, _plant())
     assert not m.closed_loop_stable
     assert m.gain_margin_db < 0 or m.phase_margin < 0
     assert np.max(np.abs(closed_loop_poles(hot, _plant()))) > 1
 
 
 def test_crossover_follows_the_configuration() -> None:
-    c = design_controller(config=ControllerConfig(crossover_frequency=500.0))
-    assert loop_margins(c).gain_crossover_frequency == pytest.approx(500.0, rel=1e-3)
+    c = design_controller(PAPER_MODEL, config=ControllerConfig(crossover_frequency=500.0))
+    assert loop_margins(c, _plant()).gain_crossover_frequency == pytest.approx(500.0, rel=1e-3)
 
 
 @pytest.mark.parametrize('kwargs', [
@@ -123,6 +124,38 @@ def test_bad_configuration_raises(kwargs: dict[str, float]) -> None:
 
 def test_design_above_nyquist_raises() -> None:
     with pytest.raises(ConfigurationError):
-        design_controller(config=ControllerConfig(crossover_frequency=20_000.0))
+        design_controller(PAPER_MODEL, config=ControllerConfig(crossover_frequency=20_000.0))
     with pytest.raises(ConfigurationError):
-        design_controller(config=ControllerConfig(notch_frequencies=(4e5,)))
+        design_controller(PAPER_MODEL, config=ControllerConfig(notch_frequencies=(4e5,)))
+
+
+def test_automatic_design_of_the_paper_scanner_is_the_800_hz_design() -> None:
+    assert auto_controller_config(PAPER_MODEL) == ControllerConfig(crossover_frequency=800.0)
+    auto = design_controller(PAPER_MODEL)
+    explicit = design_controller(PAPER_MODEL, config=ControllerConfig())
+    assert auto == explicit
+
+
+def test_automatic_design_follows_the_model() -> None:
+    slow = dataclasses.replace(
+        PAPER_MODEL, sample_period=50e-6,
+        dynamics=InputDynamics(computation_delay=1, lag_time_constant=30e-6),
+        modal=dataclasses.replace(REFERENCE_MODEL, natural_frequencies=(
+            2 * math.pi * 4500, 2 * math.pi * 5200, 2 * math.pi * 5900)))
+    cfg = auto_controller_config(slow)
+    # the 1.6-sample delay at 50 us limits it: 0.15 rad / (2 pi 80 us) = 298 Hz -> 290 Hz
+    assert cfg.crossover_frequency == pytest.approx(290.0)
+    c = design_controller(slow)
+    m = loop_margins(c, discretize(slow.modal, slow.dynamics, slow.sample_period))
+    assert m.closed_loop_stable
+    assert m.gain_margin_db >= 6.0
+    assert m.phase_margin >= 30.0
+
+
+def test_a_model_without_a_stable_design_is_refused() -> None:
+    # A first mode 10,000 times the rigid body's gain with 0.1 % damping: no notch tames it.
+    hopeless = dataclasses.replace(PAPER_MODEL, modal=dataclasses.replace(
+        REFERENCE_MODEL, residues=(3.6e10, -5.485e6, -4.604e5),
+        damping_ratios=(0.001, 7.723e-3, 4.579e-3)))
+    with pytest.raises(ConfigurationError, match='no stable positioning controller'):
+        design_controller(hopeless)

@@ -8,14 +8,16 @@ import numpy as np
 import pytest
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.model.modal import PAPER_ANGLES, REFERENCE_MODEL, TAU, InputDynamics, ModalModel
-from galvo_sysid.model.modal import simulate as simulate_plant
+from galvo_sysid.model import PAPER_ANGLES, REFERENCE_MODEL, TAU, InputDynamics, ModalModel
+from galvo_sysid.model import simulate as simulate_plant
 from galvo_sysid.sim.profiles import ProfileConfig, move_profile
 
 K0 = REFERENCE_MODEL.k0
 
 
 def _profile(angle: float, **kwargs: object):
+    kwargs.setdefault('dynamics', InputDynamics())
+    kwargs.setdefault('sample_period', TAU)
     return move_profile(angle, length=606, record_length=512, k0=K0, **kwargs)  # type: ignore[arg-type]
 
 
@@ -44,7 +46,7 @@ def test_reference_is_the_rigid_response_to_the_feedforward() -> None:
 def test_durations_grow_with_the_angle_and_fit_the_record() -> None:
     durations = [_profile(a).duration for a in PAPER_ANGLES]
     assert durations == sorted(durations)
-    assert durations[0] * TAU >= ProfileConfig().min_duration
+    assert durations[0] * TAU >= ProfileConfig().times(TAU)[0]
     assert durations[-1] <= 0.6 * 512
     assert _profile(3.0).duration * TAU == pytest.approx(1.9e-3, rel=0.05)
     # Constant peak acceleration: duration ~ sqrt(angle) for large moves.
@@ -79,4 +81,5 @@ def test_too_large_moves_and_bad_configuration_raise() -> None:
     with pytest.raises(ConfigurationError):
         ProfileConfig(max_fraction=1.5)
     with pytest.raises(ConfigurationError):
-        move_profile(0.3, length=606, record_length=512, k0=-1.0)
+        move_profile(0.3, length=606, record_length=512, k0=-1.0, dynamics=InputDynamics(),
+                     sample_period=TAU)

@@ -10,9 +10,18 @@ import numpy as np
 import pytest
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.model.effects import Drift, PlantEffects, PlantSpec, Resonance, StepChange
-from galvo_sysid.model.modal import PAPER_ANGLES, REFERENCE_MODEL, TAU, InputDynamics, ModalModel
-from galvo_sysid.model.modal import simulate as simulate_plant
+from galvo_sysid.model import (
+    PAPER_ANGLES,
+    PAPER_MODEL,
+    REFERENCE_MODEL,
+    TAU,
+    Drift,
+    InputDynamics,
+    ModalModel,
+    PlantModel,
+    StepChange,
+)
+from galvo_sysid.model import simulate as simulate_plant
 from galvo_sysid.sim.simulator import (
     DEFAULT_ENCODER_RESOLUTION,
     GalvoSimulator,
@@ -30,8 +39,28 @@ def _sim(seed: int = 0, **kwargs: Any) -> GalvoSimulator:
     return GalvoSimulator(config=SimulatorConfig(**kwargs), seed=seed)
 
 
-def _effects(**kwargs: Any) -> PlantSpec:
-    return PlantSpec(effects=PlantEffects(**kwargs))
+def Resonance(natural_frequency: float, damping_ratio: float,
+              residue: float) -> dict[str, float]:
+    return {'natural_frequency': natural_frequency, 'damping_ratio': damping_ratio,
+            'residue': residue}
+
+
+def _effects(**kwargs: Any) -> PlantModel:
+    """The paper's model with effects given by their physical quantities."""
+    model = PAPER_MODEL
+    for r in kwargs.pop('resonances', ()):
+        model = model.with_effect('unmodeled_resonance', r)
+    names = {'friction_current': ('coulomb_friction', 'friction_current'),
+             'gain_ratio': ('gain_change', 'gain_ratio'),
+             'current_limit': ('current_saturation', 'current_limit'),
+             'pivot_frequency': ('pivot_stiffness', 'natural_frequency')}
+    for key, value in kwargs.items():
+        if key == 'dead_time':
+            model = model.with_effect('input_delay', {'delay': model.base_delay + value})
+        elif key != 'pivot_frequency' or value > 0:
+            effect, param = names[key]
+            model = model.with_effect(effect, {param: value})
+    return model
 
 
 def _open_loop(move: Move, model: ModalModel = REFERENCE_MODEL,
@@ -189,13 +218,13 @@ def test_batches_and_single_moves_agree() -> None:
 
 
 @pytest.mark.parametrize('plant', [
-    PlantSpec(),
+    PAPER_MODEL,
     _effects(dead_time=0.4 * TAU),
     _effects(pivot_frequency=2 * math.pi * 80, gain_ratio=0.85),
     _effects(resonances=(Resonance(2 * math.pi * 6000, 0.01, 1e5),)),
-    PlantSpec(dynamics=InputDynamics(lag_time_constant=0.0)),
+    dataclasses.replace(PAPER_MODEL, dynamics=InputDynamics(lag_time_constant=0.0)),
 ])
-def test_fast_and_exact_paths_agree_without_quantisation(plant: PlantSpec) -> None:
+def test_fast_and_exact_paths_agree_without_quantisation(plant: PlantModel) -> None:
     kwargs = {'plant': plant, 'encoder_resolution': 0.0}
     fast = list(_sim(2, method='fast', **kwargs).moves(angles=[0.3, 3.0], moves_per_angle=2))
     exact = list(_sim(2, method='exact', **kwargs).moves(angles=[0.3, 3.0], moves_per_angle=2))
@@ -305,7 +334,7 @@ def test_drift_changes_the_plant_as_scheduled() -> None:
     ref = _sim(1, **QUIET)
     w1 = REFERENCE_MODEL.natural_frequencies[0]
     for i in range(8):
-        assert sim.plant.model.natural_frequencies[0] == pytest.approx(
+        assert sim.plant.natural_frequencies[0] == pytest.approx(
             w1 * (1 - 0.002 * max(i - 4, 0)))
         a, b = sim.run_move(0.3 * (-1) ** i), ref.run_move(0.3 * (-1) ** i)
         if i <= 4:
@@ -315,7 +344,7 @@ def test_drift_changes_the_plant_as_scheduled() -> None:
     per_second = _sim(drifts=(Drift('k0', 0.05, unit='second'),), **QUIET)
     for _ in range(3):
         per_second.run_move(0.3)
-    assert per_second.plant.model.k0 == pytest.approx(
+    assert per_second.plant.k0 == pytest.approx(
         REFERENCE_MODEL.k0 * (1 + 0.05 * 3 * 606 * TAU))
 
 
@@ -329,7 +358,7 @@ def test_step_change_at_a_move() -> None:
             np.testing.assert_array_equal(a.encoder, b.encoder)
         else:
             assert np.abs(a.encoder - b.encoder).max() > 1e-6
-    assert sim.plant.model.k0 == pytest.approx(1.2 * REFERENCE_MODEL.k0)
+    assert sim.plant.k0 == pytest.approx(1.2 * REFERENCE_MODEL.k0)
 
 
 def test_changes_while_iterating_apply_from_the_next_move() -> None:
@@ -343,21 +372,21 @@ def test_changes_while_iterating_apply_from_the_next_move() -> None:
     assert [m.move_id for m in got] == list(range(10))
     for a, b in zip(got, expected, strict=True):
         np.testing.assert_array_equal(a.encoder, b.encoder)
-    assert sim.plant.effects.friction_current == 0.01
+    assert sim.plant.friction_current == 0.01
     sim.clear_changes()
-    assert sim.plant.effects.friction_current == 0.0
+    assert sim.plant.friction_current == 0.0
 
 
 def test_set_plant_replaces_the_base_plant() -> None:
     sim = _sim(**QUIET)
     sim.run_move(0.3)
     sim.set_plant(_effects(dead_time=TAU))
-    assert sim.plant.effects.dead_time == TAU
+    assert sim.plant.dead_time == pytest.approx(TAU)
     move = sim.run_move(-0.3)
     assert move.move_id == 1
     with pytest.raises(ConfigurationError):
         sim.set_plant(_effects(gain_ratio=30.0))      # unstable loop: refused
-    assert sim.plant.effects.dead_time == TAU
+    assert sim.plant.dead_time == pytest.approx(TAU)
 
 
 # --------------------------------------------------------------------------- schedule, errors
@@ -391,7 +420,7 @@ def test_paper_schedule_runs() -> None:
     {'dwell_length': -1},
     {'substeps': 0},
     {'method': 'magic'},
-    {'sample_period': 0.0},
+    {'design': dataclasses.replace(PAPER_MODEL, sample_period=2e-5)},
     {'drifts': ('omega_1',)},
     {'plant': 'nominal'},
     {'plant': _effects(gain_ratio=30.0)},

@@ -1,0 +1,158 @@
+"""The plant as it physically runs: every mode, the input dynamics and the effects, flat.
+
+:class:`Physics` is what a :class:`~galvo_sysid.model.plant.PlantModel` means once its effects
+are applied (:meth:`PlantModel.physics`): the simulator and the discrepancy workflow both run
+it. Signal chain (the DSP's command u is what gets recorded)::
+
+    u --pure delay--> amplifier lag --> clip(+-current_limit) --> * gain_ratio
+      --> - friction --> mechanics --> shaft angle y
+
+    mechanics(s) = k0 / (s^2 + w_p^2) + sum_i k_i / (s^2 + 2 zeta_i omega_i s + omega_i^2)
+
+with the pure delay ``computation_delay`` samples plus ``dead_time``, w_p the pivot stiffness
+(0 for a free rigid body) and the Coulomb friction an equivalent current opposing the
+velocity of the rigid-body coordinate (its torque does not scale with ``gain_ratio``).
+
+Its parameters by name (:meth:`Physics.parameters`) are what plant changes act on
+(:mod:`galvo_sysid.model.changes`): the modal names ``k0``, ``k1``.., ``omega_1``..,
+``zeta_1``.. and ``lag_time_constant``, ``dead_time``, ``friction_current``,
+``pivot_frequency``, ``gain_ratio``, ``current_limit``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.model.dynamics import check_sample_period
+from galvo_sysid.model.modal import MAX_MAGNITUDE, parameter_names
+
+__all__ = ['PHYSICAL_PARAMETERS', 'Physics', 'check_parameter_name']
+
+PHYSICAL_PARAMETERS = ('lag_time_constant', 'dead_time', 'friction_current', 'pivot_frequency',
+                       'gain_ratio', 'current_limit')
+"""Parameters of :class:`Physics` besides the modal ones (names of plant changes)."""
+
+_NAME = re.compile(r'k\d+|omega_[1-9]\d*|zeta_[1-9]\d*|' + '|'.join(PHYSICAL_PARAMETERS))
+
+
+def check_parameter_name(name: str) -> str:
+    """Return ``name`` if it can name a plant parameter, else raise ConfigurationError."""
+    if not (isinstance(name, str) and _NAME.fullmatch(name)):
+        raise ConfigurationError(
+            f'unknown plant parameter {name!r}; expected k0, k<i>, omega_<i>, zeta_<i> or one '
+            f'of {", ".join(PHYSICAL_PARAMETERS)}')
+    return name
+
+
+@dataclass(frozen=True)
+class Physics:
+    """The plant that runs (see the module docs); hashable, so loops can be cached by it.
+
+    Attributes:
+        sample_period: DSP sampling period [s].
+        k0: Rigid-body gain [deg/(A s^2)].
+        residues: Residues of every resonant mode (model modes, then unmodelled ones).
+        natural_frequencies: Their natural frequencies [rad/s].
+        damping_ratios: Their damping ratios.
+        computation_delay: Whole samples of DSP computation delay.
+        dead_time: Extra pure delay [s].
+        lag_time_constant: Amplifier lag [s] (0: none).
+        pivot_frequency: Pivot spring w_p [rad/s] (0: free rigid body).
+        gain_ratio: Torque constant relative to the modal model.
+        friction_current: Coulomb friction as an equivalent current [A] (0: none).
+        current_limit: Amplifier current limit [A] (inf: none).
+    """
+
+    sample_period: float
+    k0: float
+    residues: tuple[float, ...]
+    natural_frequencies: tuple[float, ...]
+    damping_ratios: tuple[float, ...]
+    computation_delay: int = 1
+    dead_time: float = 0.0
+    lag_time_constant: float = 0.0
+    pivot_frequency: float = 0.0
+    gain_ratio: float = 1.0
+    friction_current: float = 0.0
+    current_limit: float = math.inf
+
+    def __post_init__(self) -> None:
+        check_sample_period(self.sample_period)
+        n = len(self.residues)
+        if len(self.natural_frequencies) != n or len(self.damping_ratios) != n:
+            raise ConfigurationError('every mode needs a residue, a frequency and a damping')
+        values = np.array([self.k0, *self.residues, *self.natural_frequencies,
+                           *self.damping_ratios], dtype=float)
+        if not np.all(np.isfinite(values)) or np.max(np.abs(values)) > MAX_MAGNITUDE:
+            raise ConfigurationError(f'modal parameters must be finite and within '
+                                     f'+-{MAX_MAGNITUDE:g}')
+        if any(w <= 0 for w in self.natural_frequencies) or any(
+                z <= 0 for z in self.damping_ratios):
+            raise ConfigurationError('natural frequencies and damping ratios must be positive')
+        for name, low, strict in (('dead_time', 0.0, False), ('lag_time_constant', 0.0, False),
+                                  ('pivot_frequency', 0.0, False), ('gain_ratio', 0.0, True),
+                                  ('friction_current', 0.0, False)):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and (value > low if strict else value >= low)):
+                kind = 'positive' if strict else '>= 0'
+                raise ConfigurationError(f'{name} must be finite and {kind}, got {value!r}')
+        if math.isnan(self.current_limit) or self.current_limit <= 0:
+            raise ConfigurationError(
+                f'current_limit must be positive (inf for none), got {self.current_limit!r}')
+
+    @property
+    def n_modes(self) -> int:
+        """Number of resonant modes (model and unmodelled)."""
+        return len(self.residues)
+
+    @property
+    def pure_delay(self) -> float:
+        """Computation delay plus dead time [s]."""
+        return self.computation_delay * self.sample_period + self.dead_time
+
+    @property
+    def linear(self) -> bool:
+        """True without friction and saturation (the closed loop is then linear)."""
+        return self.friction_current == 0 and math.isinf(self.current_limit)
+
+    def static_gain(self) -> float:
+        """Steady angle per unit applied torque current [deg/A] (inf without a pivot)."""
+        if self.pivot_frequency <= 0:
+            return math.inf
+        return self.k0 / self.pivot_frequency**2 + sum(
+            k / w**2 for k, w in zip(self.residues, self.natural_frequencies, strict=True))
+
+    def parameters(self) -> dict[str, float]:
+        """Every changeable parameter by name (see the module docs)."""
+        names = parameter_names(self.n_modes)
+        values = [self.k0, *self.residues, *self.natural_frequencies, *self.damping_ratios]
+        out = {n: float(v) for n, v in zip(names, values, strict=True)}
+        out.update({name: float(getattr(self, name)) for name in PHYSICAL_PARAMETERS})
+        return out
+
+    def with_parameter(self, name: str, value: float) -> Physics:
+        """Return a copy with one parameter (a name of :meth:`parameters`) set to ``value``.
+
+        Raises:
+            ConfigurationError: Unknown name or a value out of range.
+        """
+        if name not in self.parameters():
+            check_parameter_name(name)
+            raise ConfigurationError(f'the plant has no parameter {name!r} (it has '
+                                     f'{self.n_modes} resonant modes)')
+        v = float(value)
+        if name in PHYSICAL_PARAMETERS or name == 'k0':
+            kwargs: dict[str, Any] = {name: v}
+            return replace(self, **kwargs)
+        prefix, index = name.rsplit('_', 1) if '_' in name else ('k', name[1:])
+        attr = {'k': 'residues', 'omega': 'natural_frequencies', 'zeta': 'damping_ratios'}[prefix]
+        values = list(getattr(self, attr))
+        values[int(index) - 1] = v
+        new: dict[str, Any] = {attr: tuple(values)}
+        return replace(self, **new)
