@@ -117,6 +117,14 @@ _MIN_DAMPING = 1e-5
 _FIRST_ROW = 2  # (1 - q^-1)^2 needs two past samples
 
 
+def first_row(delay: int, fraction: float) -> int:
+    """First filtered row a fit uses: the record's own input has reached the plant (whole
+    samples of delay, one more for a fractional part) and the second difference sees two
+    samples after that, so whatever came before the record (its inputs, the state) is spanned
+    by the nuisance columns (free responses, offset, lag state)."""  # noqa: D205, D209
+    return max(_FIRST_ROW, delay + (1 if fraction > 0 else 0) + _FIRST_ROW)
+
+
 def second_difference(x: ArrayLike) -> NDArray[np.float64]:
     """Return (1 - q^-1)^2 x along the last axis, x held at its first value before the record."""
     arr = np.asarray(x, dtype=float)
@@ -198,6 +206,7 @@ class _Regressors:
         self.t = sample_period
         self.delay = delay
         self.fraction = fraction
+        self.first = first_row(delay, fraction)
         self.n = u.shape[-1]
         self.nfft = 1 << (2 * self.n - 1).bit_length()
         u0 = u - u[..., :1]
@@ -330,16 +339,17 @@ def modal_regressors(u: ArrayLike, natural_frequencies: Sequence[float],
 
 
 def _free_responses(omega: Floats, zeta: Floats, n: int, sample_period: float,
-                    e: NDArray[np.complex128] | None = None) -> NDArray[np.float64]:
-    """Free-response columns of every mode: Re and Im of exp(p_i T k) over rows k >= 2.
+                    e: NDArray[np.complex128] | None = None, *,
+                    first: int = _FIRST_ROW) -> NDArray[np.float64]:
+    """Free-response columns of every mode: Re and Im of exp(p_i T k) over rows k >= first.
 
-    Shape (2 n_modes, n - _FIRST_ROW); ``e`` is :func:`_powers`' E if already computed.
+    Shape (2 n_modes, n - first); ``e`` is :func:`_powers`' E if already computed.
     """
     if e is None:
         _, e = _powers(omega, zeta, n, sample_period)
-    out = np.empty((2 * e.shape[0], n - _FIRST_ROW))
-    out[0::2] = e[:, _FIRST_ROW:].real
-    out[1::2] = e[:, _FIRST_ROW:].imag
+    out = np.empty((2 * e.shape[0], n - first))
+    out[0::2] = e[:, first:].real
+    out[1::2] = e[:, first:].imag
     return out
 
 
@@ -442,10 +452,11 @@ def model_fit_percent(model: ModalModel, current: ArrayLike, encoder: ArrayLike,
     regs = modal_regressors(u_avg, model.natural_frequencies, model.damping_ratios,
                             sample_period=sample_period, lag_time_constant=lag_time_constant,
                             computation_delay=computation_delay, dead_time=dead_time)
-    forced = np.tensordot(np.array([model.k0, *model.residues]), regs, axes=1)[_FIRST_ROW:]
-    yf = second_difference(y_avg)[_FIRST_ROW:]
+    first = first_row(*_split_delay(computation_delay, dead_time, sample_period))
+    forced = np.tensordot(np.array([model.k0, *model.residues]), regs, axes=1)[first:]
+    yf = second_difference(y_avg)[first:]
     cols = [_free_responses(model.natural_frequencies, model.damping_ratios, u_avg.size,
-                            sample_period).T, np.ones((yf.size, 1))]
+                            sample_period, first=first).T, np.ones((yf.size, 1))]
     if lag_time_constant > 0:
         k = np.arange(yf.size, dtype=float)
         cols.append(np.exp(-k * sample_period / lag_time_constant)[:, None])
@@ -456,7 +467,7 @@ def model_fit_percent(model: ModalModel, current: ArrayLike, encoder: ArrayLike,
 
 
 class _Problem:
-    """Variable projection on one averaged window (filtered rows k >= 2)."""
+    """Variable projection on one averaged window (filtered rows from :func:`first_row` on)."""
 
     def __init__(self, u: NDArray[np.float64], y: NDArray[np.float64], *, sample_period: float,
                  delay: int, fraction: float, n_modes: int, fixed_lag: float | None) -> None:
@@ -464,9 +475,10 @@ class _Problem:
         self.n_modes = n_modes
         self.fixed_lag = fixed_lag
         self.regs = _Regressors(u, sample_period=sample_period, delay=delay, fraction=fraction)
+        self.first = self.regs.first
         self.n = u.shape[-1]
-        self.k = np.arange(self.n, dtype=float)[_FIRST_ROW:]
-        self.yf_raw = second_difference(y)[_FIRST_ROW:]
+        self.k = np.arange(self.n, dtype=float)[self.first:]
+        self.yf_raw = second_difference(y)[self.first:]
         self.n_linear = 1 + n_modes + 2 * n_modes + 2
         self.n_eval = 0
         # (current, encoder, regressors of the moves' deviations, their filtered encoder):
@@ -521,8 +533,9 @@ class _Problem:
         n = self.n_modes
         _, e = _powers(omega, zeta, self.n, self.t)
         phi = np.empty((self.k.size, self.n_linear))
-        phi[:, : 1 + n] = self.regs.all(omega, zeta, lag, e)[:, _FIRST_ROW:].T
-        phi[:, 1 + n: 1 + 3 * n] = _free_responses(omega, zeta, self.n, self.t, e).T
+        phi[:, : 1 + n] = self.regs.all(omega, zeta, lag, e)[:, self.first:].T
+        phi[:, 1 + n: 1 + 3 * n] = _free_responses(omega, zeta, self.n, self.t, e,
+                                                   first=self.first).T
         phi[:, -2] = 1.0
         phi[:, -1] = self.lag_free(lag)
         return self.apply_whitening(phi) if whitened else phi
@@ -533,7 +546,7 @@ class _Problem:
             out = np.zeros(self.k.size)
             out[0] = 1.0
             return out
-        return np.asarray(np.exp(-(self.k - _FIRST_ROW) * (self.t / lag)), dtype=np.float64)
+        return np.asarray(np.exp(-(self.k - self.first) * (self.t / lag)), dtype=np.float64)
 
     # -- linear solve ----------------------------------------------------------------------
     def factor(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
@@ -571,13 +584,13 @@ class _Problem:
         w_p = np.concatenate([omega * math.exp(h), omega])
         z_p = np.concatenate([zeta, zeta * math.exp(h)])
         _, e = _powers(w_p, z_p, self.n, self.t)
-        forced = self.regs.convolve(self.regs.mode_impulses(w_p, z_p, lag, e))[:, _FIRST_ROW:]
-        free = _free_responses(w_p, z_p, self.n, self.t, e)
+        forced = self.regs.convolve(self.regs.mode_impulses(w_p, z_p, lag, e))[:, self.first:]
+        free = _free_responses(w_p, z_p, self.n, self.t, e, first=self.first)
         # every perturbed column in one matrix, whitened in one call
         blocks = [forced.T, free.T]
         if self.fixed_lag is None:
             step = h * self.t
-            blocks += [self.regs.all(omega, zeta, lag + step)[:, _FIRST_ROW:].T,
+            blocks += [self.regs.all(omega, zeta, lag + step)[:, self.first:].T,
                        self.lag_free(lag + step)[:, None]]
         new = self.apply_whitening(np.hstack(blocks))
         out: list[tuple[NDArray[np.intp], NDArray[np.float64]]] = []
@@ -607,7 +620,13 @@ class _Problem:
     def scan_gains(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
                    lag: float, w_c: NDArray[np.float64],
                    z_c: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Cost reduction of mode i at each candidate (w_c, z_c), the other modes fixed.
+        """Cost reduction of mode i at each candidate (w_c, z_c), the other modes fixed."""
+        return self.scan(i, omega, zeta, lag, w_c, z_c)[0]
+
+    def scan(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
+             lag: float, w_c: NDArray[np.float64],
+             z_c: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(cost reduction, residue) of mode i at each candidate (w_c, z_c), others fixed.
 
         The other columns are projected out once; the candidates' columns are computed in one
         batch, each then costs a 3-column least-squares solve.
@@ -621,8 +640,8 @@ class _Problem:
         q, _ = qr(others / scale, mode='economic', check_finite=False)
         r_o = self.yf - q @ (q.T @ self.yf)
         _, e = _powers(w_c, z_c, self.n, self.t)
-        forced = self.regs.convolve(self.regs.mode_impulses(w_c, z_c, lag, e))[:, _FIRST_ROW:]
-        free = _free_responses(w_c, z_c, self.n, self.t, e)
+        forced = self.regs.convolve(self.regs.mode_impulses(w_c, z_c, lag, e))[:, self.first:]
+        free = _free_responses(w_c, z_c, self.n, self.t, e, first=self.first)
         cand = self.apply_whitening(np.stack([forced, free[0::2], free[1::2]], axis=-1),
                                     axis=1)  # (m, rows, 3)
         c_o = cand - q @ (q.T @ cand)
@@ -631,10 +650,10 @@ class _Problem:
         try:
             sol = np.linalg.solve(gram, rhs[..., None])[..., 0]
         except np.linalg.LinAlgError:
-            return np.full(w_c.size, -1.0)
+            return np.full(w_c.size, -1.0), np.zeros(w_c.size)
         gain = np.sum(rhs * sol, axis=1)
         gain[~np.isfinite(gain)] = -1.0
-        return np.asarray(gain, dtype=np.float64)
+        return np.asarray(gain, dtype=np.float64), np.asarray(sol[:, 0], dtype=np.float64)
 
     def scan_mode(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
                   lag: float, grid: NDArray[np.float64], zeta_scan: float) -> float:
@@ -867,6 +886,14 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
             raise IdentificationError(f'refined fit failed: {exc}') from exc
         x = sol2.x
         edge = _edge_mode(prob.unpack(x), band_list)
+    m = cur.shape[0]
+    profiles: list[_ModeProfile] = []
+    if m > 2:
+        # Each mode's profile over its band: a clearly better basin is polished (the global
+        # search of a weakly excited mode); the plausible region widens the std below.
+        x, profiles = _profile_and_search(prob, x, band_list, cur, enc, lower, upper,
+                                          max_nfev=max_nfev)
+        edge = _edge_mode(prob.unpack(x), band_list)
     omega, zeta, lag = prob.unpack(x)
     phi, _, _, _, coef, _ = prob.factor(x)
     resid = prob.yf_raw - prob.columns(omega, zeta, lag, whitened=False) @ coef
@@ -874,9 +901,9 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
                            natural_frequencies=tuple(float(w) for w in omega),
                            damping_ratios=tuple(float(z) for z in zeta))
     names = (*model_out.parameters(), *(('lag',) if estimate_lag else ()))
-    m = cur.shape[0]
     dev = _per_move_deviations(prob, x, coef, cur, enc) if m > 2 else None
     cov, method = _covariance(prob, x, phi, coef, resid, dev)
+    _widen_to_profiles(cov, profiles, list(model_out.parameters().values()), n)
     noisy = dev is not None and float(np.mean(dev**2)) > 1e-20 * float(np.mean(prob.yf_raw**2))
     ratios = _residual_to_noise(resid, dev, band_list, sample_period) \
         if dev is not None and noisy else ()
@@ -889,7 +916,8 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
     # A mode whose residue is not significant is not resolved by these data: its frequency and
     # damping are a noise fit, so their linearised std would mislead (e.g. a pooled mean).
     k_std = np.sqrt(np.clip(np.diag(cov)[1: 1 + n], 0.0, None))
-    unresolved = tuple(i for i in range(n) if abs(coef[1 + i]) < resolve_z * k_std[i])
+    unresolved = tuple(i for i in range(n) if abs(coef[1 + i]) < resolve_z * k_std[i]
+                       or (profiles and not profiles[i].resolved(band_list[i])))
     if edge is not None and edge not in unresolved:
         lo, hi = band_list[edge]
         raise ModelMismatchError(
@@ -905,6 +933,131 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
         offset=float(coef[1 + 3 * n]), fit_percent=filtered_fit_percent(prob.yf_raw, resid),
         cost=float(resid @ resid), n_evaluations=prob.n_eval, starts=len(starts),
         unresolved_modes=tuple(i + 1 for i in unresolved), residual_to_noise=ratios)
+
+
+PROFILE_LEVEL = 9.21
+"""Cost increase, in units of the averaged (whitened) noise variance, within which another
+frequency and damping of a mode are as plausible as the fit's (chi-square, 2 dof, 99 %)."""
+
+MODE_EVIDENCE = 25.0
+"""Cost reduction (same units) a mode must bring, the others fixed, to count as resolved."""
+
+STRONG_EVIDENCE = 400.0
+"""A mode bringing this much cost reduction (20 sigma) is placed sharply: its linearised std
+holds and its profile is not scanned (saves time)."""
+
+_PROFILE_DAMPING = tuple(float(z) for z in np.geomspace(3e-4, 0.2, 8))
+_PROFILE_POINTS = 32
+
+
+@dataclass(frozen=True)
+class _ModeProfile:
+    """What one mode's profile over its band says (costs in noise-variance units).
+
+    Attributes:
+        evidence: Cost reduction the mode brings at the fit, the other modes fixed.
+        better: A (omega, zeta) of the scan with a lower cost than the fit's, if any.
+        omega_span: Smallest and largest plausible frequency [rad/s].
+        zeta_span: Smallest and largest plausible damping ratio.
+        k_span: Smallest and largest residue over the plausible points.
+    """
+
+    evidence: float
+    better: tuple[float, float] | None
+    omega_span: tuple[float, float]
+    zeta_span: tuple[float, float]
+    k_span: tuple[float, float]
+
+    def resolved(self, band: tuple[float, float]) -> bool:
+        """Whether the data place the mode: it brings enough evidence and its plausible
+        frequencies do not cover half its band (in log frequency)."""  # noqa: D205, D209
+        lo, hi = band
+        covered = math.log(self.omega_span[1] / self.omega_span[0]) / math.log(hi / lo)
+        return self.evidence >= MODE_EVIDENCE and covered < 0.5
+
+
+def _profile_modes(prob: _Problem, x: NDArray[np.float64],
+                   band_list: Sequence[tuple[float, float]],
+                   sigma2: float) -> list[_ModeProfile]:
+    """Profile each mode over a grid of its band and damping, the other modes fixed."""
+    omega, zeta, lag = prob.unpack(x)
+    out = []
+    damping = np.array(_PROFILE_DAMPING)
+    for i, (lo, hi) in enumerate(band_list):
+        gain0 = float(prob.scan(i, omega, zeta, lag, omega[i:i + 1], zeta[i:i + 1])[0][0])
+        if gain0 / sigma2 >= STRONG_EVIDENCE:
+            w, z = float(omega[i]), float(zeta[i])
+            out.append(_ModeProfile(evidence=gain0 / sigma2, better=None, omega_span=(w, w),
+                                    zeta_span=(z, z), k_span=(0.0, 0.0)))
+            continue
+        grid = np.geomspace(lo * 1.001, hi / 1.001, _PROFILE_POINTS)
+        w_c = np.concatenate([[omega[i]], np.repeat(grid, damping.size)])
+        z_c = np.concatenate([[zeta[i]], np.tile(damping, grid.size)])
+        gain, k = prob.scan(i, omega, zeta, lag, w_c, z_c)
+        delta = (gain[0] - gain) / sigma2
+        ok = delta < PROFILE_LEVEL
+        best = int(np.argmin(delta))
+        better = (float(w_c[best]), float(z_c[best])) if delta[best] < -1.0 else None
+        out.append(_ModeProfile(
+            evidence=float(gain[0] / sigma2), better=better,
+            omega_span=(float(w_c[ok].min()), float(w_c[ok].max())),
+            zeta_span=(float(z_c[ok].min()), float(z_c[ok].max())),
+            k_span=(float(k[ok].min()), float(k[ok].max()))))
+    return out
+
+
+def _profile_and_search(prob: _Problem, x: NDArray[np.float64],
+                        band_list: Sequence[tuple[float, float]], cur: NDArray[np.float64],
+                        enc: NDArray[np.float64], lower: NDArray[np.float64],
+                        upper: NDArray[np.float64], *,
+                        max_nfev: int) -> tuple[NDArray[np.float64], list[_ModeProfile]]:
+    """Profiles of the modes at x; if a mode has a clearly better basin, polish from there
+    (kept if the cost is lower) and profile again."""  # noqa: D205, D209
+    def profiles_at(xx: NDArray[np.float64]) -> list[_ModeProfile] | None:
+        dev = prob.apply_whitening(
+            _per_move_deviations(prob, xx, prob.factor(xx)[4], cur, enc), axis=1)
+        sigma2 = float(np.mean(dev**2)) / (cur.shape[0] - 1)
+        if not sigma2 > 1e-20 * float(np.mean(prob.yf**2)):
+            return None  # noise-free data: nothing to weigh the profiles with
+        return _profile_modes(prob, xx, band_list, sigma2)
+
+    profiles = profiles_at(x)
+    if profiles is None:
+        return x, []
+    if any(p.better is not None for p in profiles):
+        omega, zeta, lag = prob.unpack(x)
+        for i, p in enumerate(profiles):
+            if p.better is not None:
+                omega[i], zeta[i] = p.better
+        span = upper - lower
+        start = np.clip(prob.pack(omega, zeta, lag), lower + 1e-3 * span, upper - 1e-3 * span)
+        try:
+            sol = least_squares(prob.residual, start, jac=prob.jacobian, bounds=(lower, upper),
+                                x_scale='jac', max_nfev=max_nfev, method='trf')
+        except (ValueError, LinAlgError) as exc:
+            raise IdentificationError(f'refined fit failed: {exc}') from exc
+        if prob.cost(sol.x) < prob.cost(x):
+            x = sol.x
+            profiles = profiles_at(x) or []
+    return x, profiles
+
+
+def _widen_to_profiles(cov: NDArray[np.float64], profiles: Sequence[_ModeProfile],
+                       estimate: Sequence[float], n: int) -> None:
+    """Raise each mode's std (in place) to a third of the farthest plausible value's distance.
+
+    The linearised covariance holds near the optimum only; a weakly excited mode whose cost
+    is flat over a wide region (or has two basins) gets the std of that region (the farthest
+    point of its 99 % region read as 3 std away), its correlations dropped.
+    """
+    for i, p in enumerate(profiles):
+        for j, (a, b) in ((1 + i, p.k_span), (1 + n + i, p.omega_span),
+                          (1 + 2 * n + i, p.zeta_span)):
+            floor = max(abs(b - estimate[j]), abs(estimate[j] - a)) / 3.0 if b > a else 0.0
+            if floor * floor > cov[j, j]:
+                cov[j, :] = 0.0
+                cov[:, j] = 0.0
+                cov[j, j] = floor * floor
 
 
 def _per_move_deviations(prob: _Problem, x: NDArray[np.float64], coef: NDArray[np.float64],
@@ -930,7 +1083,7 @@ def _per_move_deviations(prob: _Problem, x: NDArray[np.float64], coef: NDArray[n
         + coef[0] * lag * h_lag
     forced = regs.convolve(h[None, :])[0] \
         + coef[0] * (regs.rigid_double - lag * regs.rigid_single)
-    return np.asarray((enc_f - forced)[:, _FIRST_ROW:], dtype=np.float64)
+    return np.asarray((enc_f - forced)[:, prob.first:], dtype=np.float64)
 
 
 def _whitening_filter(dev: NDArray[np.float64], order: int,

@@ -215,7 +215,7 @@ def test_joint_jacobian_matches_finite_differences(offset: float) -> None:
 
 
 def test_per_move_deviations_are_each_moves_residual_minus_the_mean() -> None:
-    from galvo_sysid.ident.refine import _FIRST_ROW, _per_move_deviations, _Problem
+    from galvo_sysid.ident.refine import _per_move_deviations, _Problem
 
     cur, enc = simulate_window(PSI, moves=6, seed=3)
     enc = enc - enc[:, :1]
@@ -229,8 +229,8 @@ def test_per_move_deviations_are_each_moves_residual_minus_the_mean() -> None:
     regs = modal_regressors(cur, REFERENCE_MODEL.natural_frequencies,
                             REFERENCE_MODEL.damping_ratios, sample_period=TAU,
                             lag_time_constant=0.6 * TAU)
-    per_move = (second_difference(enc) - np.tensordot(coef[:4], regs, axes=1))[:, _FIRST_ROW:]
+    per_move = (second_difference(enc) - np.tensordot(coef[:4], regs, axes=1))[:, prob.first:]
     expected = per_move - per_move.mean(axis=0)
-    assert dev.shape == expected.shape == (6, 510)
+    assert dev.shape == expected.shape == (6, 509)  # rows from 3 on (delay 1 + 2)
     np.testing.assert_allclose(dev, expected, atol=1e-9 * np.abs(per_move).max())
     assert np.abs(expected).max() > 1e-3 * np.abs(per_move).max()  # not trivially zero
