@@ -87,9 +87,11 @@ __all__ = [
     'filtered_fit_percent',
     'modal_regressors',
     'model_fit_percent',
+    'added_mode_gains',
     'refine_fit',
     'refine_joint',
     'second_difference',
+    'window_noise_filters',
 ]
 
 DEFAULT_DAMPING_START = 0.03
@@ -115,6 +117,7 @@ _STAGE1_TOL = 1e-5
 _MAX_DAMPING = 0.3
 _MIN_DAMPING = 1e-5
 _FIRST_ROW = 2  # (1 - q^-1)^2 needs two past samples
+_MAX_DECAY = 700.0  # exp(-700) is about 1e-304: a lag's decay per sample beyond it is 0
 
 
 def first_row(delay: int, fraction: float) -> int:
@@ -259,7 +262,8 @@ class _Regressors:
         h = np.zeros(self.n)
         if lag > 0:
             g1, g2 = _pulse_numerator(-1.0 / lag, self.fraction, self.t)
-            powers = np.exp(np.arange(self.n - self.delay - 1, dtype=float) * (-self.t / lag))
+            rate = min(self.t / lag, _MAX_DECAY)  # a vanishing lag: no overflow, 0 * inf
+            powers = np.exp(np.arange(self.n - self.delay - 1, dtype=float) * -rate)
             d = self.delay
             if d + 1 < self.n:
                 h[d + 1:] = g1.real * powers
@@ -383,6 +387,9 @@ class RefinedFit:
         residual_to_noise: ``((lo, hi), ratio)`` per interval between band edges: energy of
             the averaged residual over the noise's (about 1 for an adequate model; empty
             without per-move records or noise).
+        chi2: Joint fits: the sum of squared residuals, prewhitened and weighted by each
+            window's averaged noise (about ``rows`` for an adequate model; nan if not known).
+        rows: Joint fits: residual rows over all windows.
     """
 
     model: ModalModel
@@ -402,6 +409,8 @@ class RefinedFit:
     starts: int
     unresolved_modes: tuple[int, ...] = ()
     residual_to_noise: tuple[tuple[tuple[float, float], float], ...] = ()
+    chi2: float = math.nan
+    rows: int = 0
 
     @property
     def resolved(self) -> tuple[bool, ...]:
@@ -546,7 +555,8 @@ class _Problem:
             out = np.zeros(self.k.size)
             out[0] = 1.0
             return out
-        return np.asarray(np.exp(-(self.k - self.first) * (self.t / lag)), dtype=np.float64)
+        rate = min(self.t / lag, _MAX_DECAY)
+        return np.asarray(np.exp(-(self.k - self.first) * rate), dtype=np.float64)
 
     # -- linear solve ----------------------------------------------------------------------
     def factor(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
@@ -654,6 +664,30 @@ class _Problem:
         gain = np.sum(rhs * sol, axis=1)
         gain[~np.isfinite(gain)] = -1.0
         return np.asarray(gain, dtype=np.float64), np.asarray(sol[:, 0], dtype=np.float64)
+
+    def scan_new(self, omega: NDArray[np.float64], zeta: NDArray[np.float64], lag: float,
+                 w_c: NDArray[np.float64], z_c: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Cost reduction of one more mode at each candidate (w_c, z_c), the modes fixed."""
+        phi = self.columns(omega, zeta, lag)
+        scale = np.linalg.norm(phi, axis=0)
+        scale[scale == 0] = 1.0
+        q, _ = qr(phi / scale, mode='economic', check_finite=False)
+        r_o = self.yf - q @ (q.T @ self.yf)
+        _, e = _powers(w_c, z_c, self.n, self.t)
+        forced = self.regs.convolve(self.regs.mode_impulses(w_c, z_c, lag, e))[:, self.first:]
+        free = _free_responses(w_c, z_c, self.n, self.t, e, first=self.first)
+        cand = self.apply_whitening(np.stack([forced, free[0::2], free[1::2]], axis=-1),
+                                    axis=1)
+        c_o = cand - q @ (q.T @ cand)
+        gram = np.swapaxes(c_o, 1, 2) @ c_o
+        rhs = np.swapaxes(c_o, 1, 2) @ r_o
+        try:
+            sol = np.linalg.solve(gram, rhs[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            return np.zeros(w_c.size)
+        gain = np.sum(rhs * sol, axis=1)
+        gain[~np.isfinite(gain)] = 0.0
+        return np.asarray(gain, dtype=np.float64)
 
     def scan_mode(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
                   lag: float, grid: NDArray[np.float64], zeta_scan: float) -> float:
@@ -1275,11 +1309,66 @@ class _JointProblem:
         return out
 
 
-def _window_noise_rms(cur: NDArray[np.float64], enc: NDArray[np.float64]) -> float:
-    """Rough rms of a window's averaged filtered noise (the moves' scatter / sqrt(M))."""
+def _window_noise_rms(cur: NDArray[np.float64], enc: NDArray[np.float64],
+                      prob: _Problem | None = None) -> float:
+    """Rms of a window's averaged filtered noise (the moves' scatter / sqrt(M - 1)), whitened
+    by ``prob``'s filter if given."""  # noqa: D205, D209
     yf = second_difference(enc)[:, _FIRST_ROW:]
+    dev = yf - yf.mean(axis=0)
+    if prob is not None:
+        dev = prob.apply_whitening(dev, axis=1)
     m = yf.shape[0]
-    return float(np.sqrt(np.mean((yf - yf.mean(axis=0)) ** 2) / max(m - 1, 1)))
+    return float(np.sqrt(np.mean(dev**2) / max(m - 1, 1)))
+
+
+def window_noise_filters(windows: Sequence[tuple[ArrayLike, ArrayLike]], *,
+                         order: int = DEFAULT_WHITEN_ORDER) -> list[NDArray[np.float64]]:
+    """A prewhitening filter per window from its moves' scatter alone (no model needed).
+
+    The AR model of the (1 - q^-1)^2-filtered encoder deviations from the window's mean: the
+    noise the averaged window carries, up to the small part the input deviations explain.
+    """
+    out = []
+    for current, encoder in windows:
+        cur, enc = _validate(current, encoder)
+        dev = second_difference(enc - enc.mean(axis=0))[:, _FIRST_ROW:]
+        out.append(_whitening_filter(dev, order, float(np.sqrt(np.mean(
+            second_difference(enc.mean(axis=0)) ** 2)))))
+    return out
+
+
+def added_mode_gains(windows: Sequence[tuple[ArrayLike, ArrayLike]], fit: RefinedFit, *,
+                     noise_filters: Sequence[NDArray[np.float64]],
+                     candidates: tuple[NDArray[np.float64], NDArray[np.float64]]) -> (
+                         NDArray[np.float64]):
+    """Drop of a joint fit's ``chi2`` if one more mode were added at each candidate.
+
+    The fit's modes and lag stay fixed, all linear coefficients are solved again; the same
+    ``noise_filters`` as the fit's must be given, so the drops are in its ``chi2`` units.
+
+    Args:
+        windows: The fit's windows.
+        fit: A joint fit made with ``noise_filters``.
+        noise_filters: Its filters.
+        candidates: ``(omega, zeta)`` of the candidate modes.
+
+    Returns:
+        The drop of chi2 per candidate.
+    """
+    w_c, z_c = (np.asarray(c, dtype=float) for c in candidates)
+    m = fit.model
+    omega = np.array(m.natural_frequencies, dtype=float)
+    zeta = np.array(m.damping_ratios, dtype=float)
+    delay, frac = _split_delay(fit.computation_delay, fit.dead_time, fit.sample_period)
+    total = np.zeros(w_c.size)
+    for (current, encoder), filt in zip(windows, noise_filters, strict=True):
+        cur, enc = _validate(current, encoder)
+        prob = _Problem(cur.mean(axis=0), enc.mean(axis=0), sample_period=fit.sample_period,
+                        delay=delay, fraction=frac, n_modes=m.n_modes, fixed_lag=None)
+        prob.set_whitening(np.asarray(filt, dtype=float))
+        weight = 1.0 / max(_window_noise_rms(cur, enc, prob), 1e-300)
+        total += weight * weight * prob.scan_new(omega, zeta, fit.lag_time_constant, w_c, z_c)
+    return total
 
 
 def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float,
@@ -1290,7 +1379,8 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
                  lag_bounds: tuple[float, float] = DEFAULT_LAG_BOUNDS,
                  scan_points: int = DEFAULT_SCAN_POINTS, resolve_z: float = DEFAULT_RESOLVE_Z,
                  whiten_order: int = DEFAULT_WHITEN_ORDER, max_nfev: int = 100,
-                 keep_initial_damping: bool = False) -> RefinedFit:
+                 keep_initial_damping: bool = False,
+                 noise_filters: Sequence[NDArray[np.float64]] | None = None) -> RefinedFit:
     """Fit one modal model to several windows of the same plant at once (the pooled estimate).
 
     Like :func:`refine_fit`, on every window's average, with omega_i, zeta_i, the lag, k0 and
@@ -1314,6 +1404,9 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
         scan_points: Frequencies per band of the joint starting scan (0: none).
         resolve_z: Significance below which a mode counts as not resolved.
         whiten_order: Order of each window's AR noise model for the prewhitened second stage.
+        noise_filters: Fixed prewhitening filters, one per window (e.g.
+            :func:`window_noise_filters`): the fit is then one prewhitened stage, and fits of
+            different models to the same windows have comparable ``chi2``.
         max_nfev: Iteration limit of each stage.
         keep_initial_damping: Start from ``initial`` as it is (its damping ratios too) rather
             than from the continuation's ``damping_start``: for a good start, e.g. the pooled
@@ -1358,7 +1451,16 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
                          delay=delay, fraction=frac, n_modes=n,
                          fixed_lag=None if estimate_lag else lag_time_constant)
                 for cur, enc in records]
-    noise = np.array([_window_noise_rms(cur, enc) for cur, enc in records])
+    if noise_filters is not None:
+        if len(noise_filters) != len(problems):
+            raise ConfigurationError('one noise filter per window')
+        for prob, filt in zip(problems, noise_filters, strict=True):
+            prob.set_whitening(np.asarray(filt, dtype=float))
+        noise = np.array([_window_noise_rms(cur, enc, prob) for (cur, enc), prob
+                          in zip(records, problems, strict=True)])
+        whiten_order = 0  # already whitened: one stage
+    else:
+        noise = np.array([_window_noise_rms(cur, enc) for cur, enc in records])
     noise[~(noise > 0)] = float(np.max(noise)) if np.any(noise > 0) else 1.0
     joint = _JointProblem(problems, 1.0 / noise)
     lower, upper = _bounds(band_list, estimate_lag, lag_bounds)
@@ -1375,7 +1477,7 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
             gains = sum(wt * wt * prob.scan_gains(i, omega_scan, zeta_init, lag0, w_c, z_c)
                         for prob, wt in zip(problems, joint.weights, strict=True))
             omega_scan[i] = float(w_c[int(np.argmax(gains))])
-    moved = np.max(np.abs(np.log(omega_scan / omega0))) > 0.01
+    moved = bool(omega0.size) and np.max(np.abs(np.log(omega_scan / omega0))) > 0.01
     if keep_initial_damping:
         span = upper - lower
         as_is = joint.pack(np.array(initial.natural_frequencies, dtype=float),
@@ -1448,7 +1550,9 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
         covariance_method='sandwich', initial_conditions=(), offset=float('nan'),
         fit_percent=100.0 * (1.0 - math.sqrt(res2 / den2)) if den2 > 0 else float('nan'),
         cost=res2, n_evaluations=joint.n_eval, starts=len(starts),
-        unresolved_modes=tuple(i + 1 for i in unresolved))
+        unresolved_modes=tuple(i + 1 for i in unresolved),
+        chi2=float(np.sum(joint.solve(x)[1] ** 2)),
+        rows=int(sum(prob.yf.size for prob in problems)))
 
 
 def _joint_covariance(joint: _JointProblem, x: NDArray[np.float64],

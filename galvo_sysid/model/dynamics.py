@@ -187,6 +187,17 @@ class DiscreteStateSpace:
     b: NDArray[np.float64]
     c: NDArray[np.float64]
 
+    def frequency_response(self, omega: ArrayLike, sample_period: float) -> NDArray[
+            np.complex128]:
+        """Return c (zI - a)^-1 b at z = exp(j omega T) (batched linear solves)."""
+        w = np.asarray(omega, dtype=float)
+        n = self.a.shape[0]
+        z = np.exp(1j * w * sample_period)
+        m = z[:, None, None] * np.eye(n)[None] - self.a[None]
+        rhs = np.broadcast_to(self.b.astype(complex), (len(z), n))[..., None]
+        x = np.linalg.solve(m, rhs)[..., 0]
+        return np.asarray(x @ self.c, dtype=np.complex128)
+
 
 def modal_state_space(*, gains: Sequence[float], frequencies: Sequence[float],
                       dampings: Sequence[float], lag_time_constant: float,

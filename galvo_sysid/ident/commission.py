@@ -1,0 +1,417 @@
+"""Commissioning: learn a healthy scanner's model from its own moves, with no prior model.
+
+What a servo analyzer's curve fit did for the paper (Table I), from ordinary positioning
+moves instead (windows of moves of one target angle, as the sysid node collects them):
+
+1. **Measured frequency response** (:func:`frequency_response`): the H1 estimate over the
+   windows' averaged moves (both signals filtered by (1 - q^-1)^2), its standard deviation
+   (move-to-move scatter, or the windows' disagreement where larger) and the coherence that
+   follows; what the Bode plot shows. The model itself is fitted in the time domain.
+2. **Input dynamics**: the whole samples of computation delay are chosen by the fit of the
+   rigid body alone (0-3 samples, the amplifier lag free within 0-1.5 samples); the split
+   between a last sample of delay and the lag is checked again on the final model.
+3. **Modes, one at a time**: every frequency of the search range (300 Hz, or a record's
+   length, up to 0.95 x Nyquist) and damping is scanned for the mode that lowers the joint
+   fit's chi-square most; the mode is added and all are fitted again (joint refined fit,
+   fixed noise filters from the moves' scatter, so fits of different orders compare). The
+   number of modes is the one with the lowest Bayesian information criterion
+   ``chi2 + parameters x ln(rows)``; a mode that would be unresolved, or end at its band's
+   edge, is not added.
+4. **Pooled fit**: the chosen model fitted jointly to every window (up to
+   ``max_windows``), its covariance giving each parameter's standard deviation; bands
+   around the modes.
+
+The result (:class:`Commissioning`) holds the :class:`~galvo_sysid.model.plant.PlantModel`
+(with its uncertainty and bands, ready for the file), the measured response and the steps
+of the order selection; :mod:`galvo_sysid.field.commission` reads the bag and writes the file
+and the plot.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from itertools import pairwise
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError, InvalidDataError
+from galvo_sysid.ident.preprocess import validate_records
+from galvo_sysid.ident.refine import (
+    RefinedFit,
+    added_mode_gains,
+    refine_joint,
+    second_difference,
+    window_noise_filters,
+)
+from galvo_sysid.model.dynamics import InputDynamics, check_sample_period
+from galvo_sysid.model.modal import ModalModel, default_bands
+from galvo_sysid.model.plant import PlantModel
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
+    from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    'Commissioning',
+    'FrequencyResponse',
+    'OrderStep',
+    'commission',
+    'frequency_response',
+]
+
+_SCAN_POINTS = 240
+_SCAN_DAMPING = (0.003, 0.01, 0.03)
+_MAX_DELAY = 3
+_LAG_BOUNDS = (0.0, 1.5)
+_MIN_SEPARATION = 1.08  # a new mode this close to a found one is the same mode
+_EVIDENCE = 25.0        # chi2 drop (5 sigma) a new mode needs before it is tried
+
+
+@dataclass(frozen=True)
+class FrequencyResponse:
+    """The measured frequency response of the averaged moves (from command to angle).
+
+    Attributes:
+        omega: Angular frequencies [rad/s].
+        response: The discrete response H(e^{j omega T}) (delay and ZOH included) [deg/A].
+        std: Standard deviation of ``response`` [deg/A]: the larger of the move-to-move
+            scatter's and the windows' disagreement's (which also holds what the records'
+            start and end leave: ringing carried over from the previous move, leakage).
+        coherence: |H|^2 / (|H|^2 + std^2): 1 where the data determine H, 0 in the noise.
+    """
+
+    omega: NDArray[np.float64]
+    response: NDArray[np.complex128]
+    std: NDArray[np.float64]
+    coherence: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class OrderStep:
+    """One step of the order selection.
+
+    Attributes:
+        modes: Resonant modes of this fit.
+        chi2: Its chi-square (about ``rows`` for an adequate model).
+        bic: ``chi2 + parameters x ln(rows)``.
+        added: Frequency of the mode added at this step [rad/s] (nan for the first).
+        note: Why the step ended the search, if it did.
+    """
+
+    modes: int
+    chi2: float
+    bic: float
+    added: float
+    note: str = ''
+
+
+@dataclass(frozen=True)
+class Commissioning:
+    """What commissioning learnt.
+
+    Attributes:
+        model: The scanner's model, with bands and standard deviations.
+        fit: The pooled joint fit behind it.
+        response: The measured frequency response.
+        steps: The order selection, one entry per number of modes tried.
+        windows: Windows in the pooled fit.
+        selection_windows: Windows the order selection used.
+        rows: Residual rows of the selection fits (for the criterion).
+    """
+
+    model: PlantModel
+    fit: RefinedFit
+    response: FrequencyResponse
+    steps: tuple[OrderStep, ...]
+    windows: int
+    selection_windows: int
+    rows: int
+
+    @property
+    def n_modes(self) -> int:
+        """Resonant modes found."""
+        return self.model.n_modes
+
+
+def frequency_response(windows: Sequence[tuple[ArrayLike, ArrayLike]], *,
+                       sample_period: float) -> FrequencyResponse:
+    """The H1 estimate over the windows' averaged moves, with its std and coherence.
+
+    Args:
+        windows: ``(current, encoder)`` records per window, each (M_w, N) with the same N.
+        sample_period: Sampling period [s].
+
+    Returns:
+        The response at the FFT frequencies of the records (DC left out).
+
+    Raises:
+        InvalidDataError: No windows, records of different lengths, or fewer than 3 moves.
+    """
+    t = check_sample_period(sample_period)
+    records = _records(windows)
+    n = records[0][0].shape[1]
+    if any(c.shape[1] != n for c, _ in records):
+        raise InvalidDataError('all windows need records of the same length')
+    # a Tukey taper (10 % at each end) on both signals: the records start with the previous
+    # move's ringing and end before it has died out; without it that leaks across the band
+    edge = max(1, n // 10)
+    ramp = 0.5 * (1 - np.cos(np.pi * (np.arange(edge) + 0.5) / edge))
+    taper = np.ones(n)
+    taper[:edge], taper[n - edge:] = ramp, ramp[::-1]
+    us, ys, noise = [], [], np.zeros(n // 2 + 1)
+    for cur, enc in records:
+        m = cur.shape[0]
+        u = np.fft.rfft(taper * second_difference(cur.mean(axis=0)))
+        dev = np.fft.rfft(taper * second_difference(enc - enc.mean(axis=0)), axis=1)
+        var = np.sum(np.abs(dev) ** 2, axis=0) / (m * (m - 1))   # of the averaged y
+        us.append(u)
+        ys.append(np.fft.rfft(taper * second_difference(enc.mean(axis=0))))
+        noise += np.abs(u) ** 2 * var
+    u_all, y_all = np.array(us), np.array(ys)
+    suu = np.sum(np.abs(u_all) ** 2, axis=0)
+    omega = 2 * math.pi * np.fft.rfftfreq(n, t)
+    keep = (omega > 0) & (suu > 0)
+    u_all, y_all, suu = u_all[:, keep], y_all[:, keep], suu[keep]
+    h = np.sum(y_all * np.conj(u_all), axis=0) / suu
+    # Two spreads, the larger counts: the move-to-move scatter (noise), and the windows'
+    # disagreement (also what a record's start and end leave: carried-over ringing, leakage).
+    scatter = np.sqrt(noise[keep]) / suu
+    w = len(records)
+    if w > 1:
+        spread = np.sum(np.abs(y_all - h * u_all) ** 2, axis=0) / suu**2 * w / (w - 1)
+        std = np.maximum(scatter, np.sqrt(spread / w))
+    else:
+        std = scatter
+    coherence = np.abs(h) ** 2 / (np.abs(h) ** 2 + std**2)
+    return FrequencyResponse(omega=np.asarray(omega[keep], dtype=np.float64),
+                             response=np.asarray(h, dtype=np.complex128),
+                             std=np.asarray(std, dtype=np.float64),
+                             coherence=np.asarray(coherence, dtype=np.float64))
+
+
+def commission(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float,
+               max_modes: int = 6, search: tuple[float, float] | None = None,
+               selection_windows: int = 8, max_windows: int = 64,
+               record_length: int | None = None, dwell_length: int = 0,
+               description: str = '',
+               progress: Callable[[str], None] | None = None) -> Commissioning:
+    """Learn the scanner's model from windows of its moves (see the module docs).
+
+    Args:
+        windows: ``(current, encoder)`` records per window of one target angle, (M_w, N).
+        sample_period: Sampling period [s].
+        max_modes: Most resonant modes looked for.
+        search: Frequency range the modes are looked for in [rad/s] (default: 300 Hz or two
+            periods per record, whichever is higher, to 0.95 x Nyquist).
+        selection_windows: Windows the order selection fits (spread over the list).
+        max_windows: Windows of the pooled fit at most (spread over the list).
+        record_length: Samples per record for the model file (default: the records').
+        dwell_length: Samples between a record and the next move, for the model file.
+        description: Free text for the model file.
+        progress: Called with a line of text at each step.
+
+    Returns:
+        The commissioned model with its fit and the measured response.
+
+    Raises:
+        InvalidDataError: Too few windows or moves, bad records.
+        IdentificationError: No fit succeeded.
+        ConfigurationError: Bad options.
+    """
+    t = check_sample_period(sample_period)
+    say = progress or (lambda _text: None)
+    if not 1 <= int(max_modes) <= 16:
+        raise ConfigurationError(f'max_modes must be within 1..16, got {max_modes}')
+    records = _records(windows)
+    n_samples = records[0][0].shape[1]
+    nyquist = math.pi / t
+    lo, hi = search if search is not None else (
+        2 * math.pi * max(300.0, 2.0 / (n_samples * t)), 0.95 * nyquist)
+    if not 0 < lo < hi <= nyquist:
+        raise ConfigurationError(f'search range {lo:.4g}..{hi:.4g} rad/s must lie below '
+                                 f'Nyquist ({nyquist:.4g} rad/s)')
+    chosen = _spread(records, selection_windows)
+    filters = window_noise_filters(chosen)
+    response = frequency_response(records, sample_period=t)
+    say(f'{len(records)} windows, {sum(c.shape[0] for c, _ in records)} moves; order selection '
+        f'on {len(chosen)} windows, modes looked for in {lo / (2e3 * math.pi):.3g}..'
+        f'{hi / (2e3 * math.pi):.3g} kHz')
+
+    def fit(modal: ModalModel, delay: int, lag: float) -> RefinedFit:
+        return refine_joint(chosen, sample_period=t, initial=modal, computation_delay=delay,
+                            lag_time_constant=lag, lag_bounds=_LAG_BOUNDS,
+                            bands=_bands(modal, lo, hi), scan_points=0,
+                            keep_initial_damping=True, noise_filters=filters)
+
+    rigid = ModalModel(k0=1.0, residues=(), natural_frequencies=(), damping_ratios=())
+    fits = []
+    for delay in range(_MAX_DELAY + 1):
+        try:
+            fits.append((fit(rigid, delay, 0.5 * t), delay))
+        except GalvoSysidError:
+            continue
+    if not fits:
+        raise InvalidDataError('not even the rigid body fits these windows')
+    current, delay = min(fits, key=lambda f: f[0].chi2)
+    rows = current.rows
+    windows_used = len(chosen)
+
+    def bic(f: RefinedFit) -> float:
+        params = 1 + 4 * f.model.n_modes + 1 + windows_used * (2 + 2 * f.model.n_modes)
+        return f.chi2 + params * math.log(rows)
+
+    steps = [OrderStep(modes=0, chi2=current.chi2, bic=bic(current), added=math.nan)]
+    say(f'rigid body: computation delay {delay} sample(s), lag '
+        f'{current.lag_time_constant / t:.2f} T, chi2/rows {current.chi2 / rows:.3g}')
+    while current.model.n_modes < max_modes:
+        candidate, note = _add_mode(chosen, current, filters, lo, hi, fit, delay)
+        if candidate is None:
+            steps[-1] = replace(steps[-1], note=note)
+            break
+        added = _new_frequency(current.model, candidate.model)
+        step = OrderStep(modes=candidate.model.n_modes, chi2=candidate.chi2,
+                         bic=bic(candidate), added=added)
+        say(f'{step.modes} mode(s): added {added / (2e3 * math.pi):.4g} kHz, chi2/rows '
+            f'{step.chi2 / rows:.3g}, BIC {step.bic:.6g}')
+        if step.bic >= steps[-1].bic:
+            steps.append(replace(step, note='the information criterion rose: not kept'))
+            break
+        steps.append(step)
+        current = _check_delay_split(candidate, fit, delay, t)
+        if current.computation_delay != delay:
+            delay = current.computation_delay
+            say(f'  computation delay now {delay} sample(s), lag '
+                f'{current.lag_time_constant / t:.2f} T, chi2/rows {current.chi2 / rows:.3g}')
+    else:
+        steps[-1] = replace(steps[-1], note=f'stopped at max_modes={max_modes}')
+    pooled_records = _spread(records, max_windows)
+    final = _pooled(pooled_records, current, lo, hi, t)
+    say(f'pooled fit over {len(pooled_records)} windows: {final.model.n_modes} mode(s), fit '
+        f'{final.fit_percent:.2f} %')
+    model = _to_model(final, t, record_length=record_length or n_samples,
+                      dwell_length=dwell_length, description=description)
+    return Commissioning(model=model, fit=final, response=response, steps=tuple(steps),
+                         windows=len(pooled_records), selection_windows=len(chosen),
+                         rows=rows)
+
+
+def _records(windows: Sequence[tuple[ArrayLike, ArrayLike]]) -> list[
+        tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    if not windows:
+        raise InvalidDataError('no windows to commission from')
+    out = []
+    for j, (current, encoder) in enumerate(windows):
+        try:
+            cur, enc = validate_records(current, encoder, min_records=3)
+        except InvalidDataError as exc:
+            raise InvalidDataError(f'window {j}: {exc}') from exc
+        out.append((cur, enc - enc[:, :1]))
+    return out
+
+
+def _spread(records: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+            count: int) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """At most ``count`` of the records, evenly spread over the list."""
+    if len(records) <= count:
+        return list(records)
+    picks = np.unique(np.linspace(0, len(records) - 1, count).round().astype(int))
+    return [records[i] for i in picks]
+
+
+def _bands(modal: ModalModel, lo: float, hi: float) -> tuple[tuple[float, float], ...]:
+    """Bands meeting between the modes, the outer ones reaching the search range's ends."""
+    w = modal.natural_frequencies
+    if not w:
+        return ()
+    edges = [lo, *(math.sqrt(a * b) for a, b in pairwise(w)), hi]
+    return tuple(pairwise(edges))
+
+
+def _add_mode(chosen: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+              current: RefinedFit, filters: list[NDArray[np.float64]], lo: float, hi: float,
+              fit: Callable[[ModalModel, int, float], RefinedFit],
+              delay: int) -> tuple[RefinedFit | None, str]:
+    """The fit with one more mode at the best scanned candidate, or (None, why not)."""
+    grid = np.geomspace(lo * 1.01, hi / 1.01, _SCAN_POINTS)
+    w_c = np.repeat(grid, len(_SCAN_DAMPING))
+    z_c = np.tile(np.array(_SCAN_DAMPING), grid.size)
+    found = np.array(current.model.natural_frequencies)
+    if found.size:
+        near = np.min(np.abs(np.log(w_c[:, None] / found[None, :])), axis=1)
+        far = near > math.log(_MIN_SEPARATION)
+        w_c, z_c = w_c[far], z_c[far]
+    gains = added_mode_gains(chosen, current, noise_filters=filters, candidates=(w_c, z_c))
+    best = int(np.argmax(gains))
+    if not gains[best] > _EVIDENCE:
+        return None, f'no further mode lowers chi2 by {_EVIDENCE:g} (best {gains[best]:.3g})'
+    m = current.model
+    order = np.argsort([*m.natural_frequencies, w_c[best]])
+    freqs = np.array([*m.natural_frequencies, w_c[best]])[order]
+    damps = np.array([*m.damping_ratios, z_c[best]])[order]
+    start = ModalModel(k0=m.k0, residues=(0.0,) * freqs.size,
+                       natural_frequencies=tuple(float(f) for f in freqs),
+                       damping_ratios=tuple(float(z) for z in damps))
+    try:
+        candidate = fit(start, delay, current.lag_time_constant)
+    except GalvoSysidError as err:
+        return None, f'the fit with one more mode failed ({err})'
+    if candidate.unresolved_modes:
+        return None, (f'one more mode would leave mode(s) {list(candidate.unresolved_modes)} '
+                      'unresolved')
+    return candidate, ''
+
+
+def _new_frequency(old: ModalModel, new: ModalModel) -> float:
+    """The frequency of ``new`` farthest from every frequency of ``old``."""
+    if not old.natural_frequencies:
+        return float(new.natural_frequencies[0])
+    dist = [min(abs(math.log(w / v)) for v in old.natural_frequencies)
+            for w in new.natural_frequencies]
+    return float(new.natural_frequencies[int(np.argmax(dist))])
+
+
+def _check_delay_split(current: RefinedFit, fit: Callable[[ModalModel, int, float], RefinedFit],
+                       delay: int, t: float) -> RefinedFit:
+    """Try one sample more and one less of pure delay (the lag starting from the rest of the
+    equivalent delay); keep the lowest chi2."""  # noqa: D205, D209
+    equivalent = delay * t + current.lag_time_constant
+    best = current
+    for other in (delay - 1, delay + 1):
+        if not 0 <= other <= _MAX_DELAY:
+            continue
+        lag = min(max(equivalent - other * t, 0.05 * t), (_LAG_BOUNDS[1] - 0.05) * t)
+        try:
+            trial = fit(current.model, other, lag)
+        except GalvoSysidError:
+            continue
+        if trial.chi2 < best.chi2 and not trial.unresolved_modes:
+            best = trial
+    return best
+
+
+def _pooled(records: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+            current: RefinedFit, lo: float, hi: float, t: float) -> RefinedFit:
+    """The chosen model fitted jointly to the pooled windows (prewhitened per window)."""
+    return refine_joint(records, sample_period=t, initial=current.model,
+                        computation_delay=current.computation_delay,
+                        lag_time_constant=current.lag_time_constant, lag_bounds=_LAG_BOUNDS,
+                        bands=_bands(current.model, lo, hi), scan_points=0,
+                        keep_initial_damping=True)
+
+
+def _to_model(fit: RefinedFit, t: float, *, record_length: int,
+              dwell_length: int, description: str) -> PlantModel:
+    """The plant model of a fit: its modes, their std and bands around them."""
+    modal = fit.model
+    std = fit.std_by_name()
+    uncertainty = {name: std[name] for name in modal.parameters() if name in std}
+    if 'lag' in std:
+        uncertainty['lag_time_constant'] = std['lag']
+    bands = default_bands(modal, sample_period=t) if modal.n_modes else None
+    return PlantModel(modal=modal, dynamics=InputDynamics(
+        computation_delay=fit.computation_delay, lag_time_constant=fit.lag_time_constant),
+        sample_period=t, bands=bands, uncertainty=tuple(uncertainty.items()),
+        record_length=record_length, dwell_length=dwell_length, description=description)
