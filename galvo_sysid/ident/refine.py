@@ -84,10 +84,10 @@ __all__ = [
     'DEFAULT_SCAN_POINTS',
     'DEFAULT_WHITEN_ORDER',
     'RefinedFit',
+    'added_mode_gains',
     'filtered_fit_percent',
     'modal_regressors',
     'model_fit_percent',
-    'added_mode_gains',
     'refine_fit',
     'refine_joint',
     'second_difference',
@@ -1330,7 +1330,7 @@ def window_noise_filters(windows: Sequence[tuple[ArrayLike, ArrayLike]], *,
     """
     out = []
     for current, encoder in windows:
-        cur, enc = _validate(current, encoder)
+        _, enc = _validate(current, encoder)
         dev = second_difference(enc - enc.mean(axis=0))[:, _FIRST_ROW:]
         out.append(_whitening_filter(dev, order, float(np.sqrt(np.mean(
             second_difference(enc.mean(axis=0)) ** 2)))))
