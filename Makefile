@@ -44,7 +44,7 @@ lint: setup
 	$(VENV)/bin/mypy galvo_sysid
 
 # Speed and accuracy figures (tables on stdout; latest output in docs/benchmarks.md).
-BENCHMARKS := accuracy paper_pipeline simulator_speed offline_speed sysid_throughput \
+BENCHMARKS := accuracy scanner_family paper_pipeline simulator_speed offline_speed sysid_throughput \
               sysid_load discrepancy_confusion
 bench: setup
 	set -e; for b in $(BENCHMARKS); do echo "== benchmarks/$$b.py"; $(VPY) benchmarks/$$b.py; done
