@@ -155,12 +155,12 @@ def frequency_response(windows: Sequence[tuple[ArrayLike, ArrayLike]], *,
     n = records[0][0].shape[1]
     if any(c.shape[1] != n for c, _ in records):
         raise InvalidDataError('all windows need records of the same length')
-    # a Tukey taper (10 % at each end) on both signals: the records start with the previous
-    # move's ringing and end before it has died out; without it that leaks across the band
+    # a half-Hann taper over the last 10 % of both signals: the records end before the
+    # ringing has died out, which would leak across the band (their start, the move's own
+    # start, is left as it is)
     edge = max(1, n // 10)
-    ramp = 0.5 * (1 - np.cos(np.pi * (np.arange(edge) + 0.5) / edge))
     taper = np.ones(n)
-    taper[:edge], taper[n - edge:] = ramp, ramp[::-1]
+    taper[n - edge:] = 0.5 * (1 + np.cos(np.pi * (np.arange(edge) + 0.5) / edge))
     us, ys, noise = [], [], np.zeros(n // 2 + 1)
     for cur, enc in records:
         m = cur.shape[0]
@@ -279,12 +279,13 @@ def commission(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period:
         if step.bic >= steps[-1].bic:
             steps.append(replace(step, note='the information criterion rose: not kept'))
             break
-        steps.append(step)
         current = _check_delay_split(candidate, fit, delay, t)
-        if current.computation_delay != delay:
+        if current is not candidate:
             delay = current.computation_delay
+            step = replace(step, chi2=current.chi2, bic=bic(current))
             say(f'  computation delay now {delay} sample(s), lag '
                 f'{current.lag_time_constant / t:.2f} T, chi2/rows {current.chi2 / rows:.3g}')
+        steps.append(step)
     else:
         steps[-1] = replace(steps[-1], note=f'stopped at max_modes={max_modes}')
     pooled_records = _spread(records, max_windows)
