@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 from dataclasses import replace
 
 import numpy as np
@@ -57,7 +58,8 @@ def test_the_model_carries_std_bands_and_the_recording(commissioned):
     z = [abs(model.modal.parameters()[n] - truth.modal.parameters()[n]) / std[n]
          for n in model.modal.parameters()]
     assert max(z) < 4.0                              # the std say how far the truth is
-    assert model.bands is not None and len(model.bands) == 3
+    assert model.bands is not None
+    assert len(model.bands) == 3
     assert model.record_length == truth.record_length
     assert model.sample_period == truth.sample_period
 
@@ -66,7 +68,7 @@ def test_the_order_selection_stops_at_the_information_criterion(commissioned):
     _, found = commissioned
     steps = found.steps
     assert [s.modes for s in steps][:4] == [0, 1, 2, 3]
-    assert all(b.bic < a.bic for a, b in zip(steps[:3], steps[1:4], strict=True))
+    assert all(b.bic < a.bic for a, b in pairwise(steps[:4]))
     assert steps[-1].note                            # it says why it stopped
     assert steps[3].chi2 / found.rows < 1.3          # the chosen model explains the data
 
