@@ -37,15 +37,23 @@ def _coefficients(c: ArrayLike, name: str) -> NDArray[np.float64]:
 
 
 def fir(b: ArrayLike, x: ArrayLike, *, axis: int = -1) -> NDArray[np.float64]:
-    """Return ``sum_j b_j x[k - j]`` along ``axis``, x zero before the record."""
+    """Return ``sum_j b_j x[k - j]`` along ``axis``, x zero before the record.
+
+    Short filters on many rows are the use (prewhitening the fit's columns): the sum of
+    shifted slices, along the first or the last axis without moving axes.
+    """
     b_arr = _coefficients(b, 'b')
-    xs = np.moveaxis(np.asarray(x, dtype=float), axis, -1)
+    xs = np.asarray(x, dtype=float)
+    ax = axis % xs.ndim
+    n = xs.shape[ax]
     out = np.zeros_like(xs)
-    n = xs.shape[-1]
+    dst = [slice(None)] * xs.ndim
+    src = [slice(None)] * xs.ndim
     for j, bj in enumerate(b_arr):
         if bj != 0 and j < n:
-            out[..., j:] += bj * xs[..., : n - j]
-    return np.moveaxis(out, -1, axis)
+            dst[ax], src[ax] = slice(j, None), slice(0, n - j)
+            out[tuple(dst)] += bj * xs[tuple(src)]
+    return out
 
 
 def lfilter(b: ArrayLike, a: ArrayLike, x: ArrayLike, *, axis: int = -1) -> NDArray[np.float64]:

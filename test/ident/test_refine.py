@@ -185,11 +185,12 @@ def test_bad_input_raises_typed_errors() -> None:
 
 
 def _joint_problem(windows: list[tuple[np.ndarray, np.ndarray]]) -> Any:
-    from galvo_sysid.ident.refine import _JointProblem, _Problem
+    from galvo_sysid.ident.refine.joint import JointProblem
+    from galvo_sysid.ident.refine.window import WindowProblem
 
-    problems = [_Problem(c.mean(axis=0), e.mean(axis=0), sample_period=TAU, delay=1,
-                         fraction=0.0, n_modes=3, fixed_lag=None) for c, e in windows]
-    return _JointProblem(problems, [1.0, 2.0][: len(problems)])
+    problems = [WindowProblem(c, e - e[:, :1], sample_period=TAU, delay=1, fraction=0.0,
+                              n_modes=3) for c, e in windows]
+    return JointProblem(problems, [1.0, 2.0][: len(problems)], fixed_lag=None)
 
 
 @pytest.mark.parametrize('offset', [0.0, 0.002])
@@ -215,22 +216,22 @@ def test_joint_jacobian_matches_finite_differences(offset: float) -> None:
 
 
 def test_per_move_deviations_are_each_moves_residual_minus_the_mean() -> None:
-    from galvo_sysid.ident.refine import _per_move_deviations, _Problem
+    from galvo_sysid.ident.refine.regressors import Regressors
+    from galvo_sysid.ident.refine.window import WindowProblem
 
     cur, enc = simulate_window(PSI, moves=6, seed=3)
     enc = enc - enc[:, :1]
-    prob = _Problem(cur.mean(axis=0), enc.mean(axis=0), sample_period=TAU, delay=1,
-                    fraction=0.0, n_modes=3, fixed_lag=None)
-    x = prob.pack(REFERENCE_MODEL.natural_frequencies, REFERENCE_MODEL.damping_ratios,
-                  0.6 * TAU)
-    coef = prob.factor(x)[4]
-    dev = _per_move_deviations(prob, x, coef, cur, enc)
-    # the plain way: each move's own regressors
-    regs = modal_regressors(cur, REFERENCE_MODEL.natural_frequencies,
-                            REFERENCE_MODEL.damping_ratios, sample_period=TAU,
-                            lag_time_constant=0.6 * TAU)
-    per_move = (second_difference(enc) - np.tensordot(coef[:4], regs, axes=1))[:, prob.first:]
+    prob = WindowProblem(cur, enc, sample_period=TAU, delay=1, fraction=0.0, n_modes=3)
+    omega = np.array(REFERENCE_MODEL.natural_frequencies)
+    zeta = np.array(REFERENCE_MODEL.damping_ratios)
+    coef = np.linalg.lstsq(prob.columns(omega, zeta, 0.6 * TAU), prob.yf, rcond=None)[0]
+    dev = prob.deviations(omega, zeta, 0.6 * TAU, coef)
+    # the plain way: each move's own regressors (its own current before the record: the
+    # level it ends at)
+    regs = Regressors(cur, sample_period=TAU, delay=1, fraction=0.0, pre=cur[:, -1:])
+    per_move = (second_difference(enc)
+                - np.tensordot(coef[:4], regs.all(omega, zeta, 0.6 * TAU), axes=1))[:, 2:]
     expected = per_move - per_move.mean(axis=0)
-    assert dev.shape == expected.shape == (6, 509)  # rows from 3 on (delay 1 + 2)
+    assert dev.shape == expected.shape == (6, 510)
     np.testing.assert_allclose(dev, expected, atol=1e-9 * np.abs(per_move).max())
     assert np.abs(expected).max() > 1e-3 * np.abs(per_move).max()  # not trivially zero

@@ -1,0 +1,225 @@
+"""Variable projection over one or several windows of one plant, and its covariance.
+
+The windows share omega_i, zeta_i, the amplifier lag (the nonlinear parameters, in ``x``)
+and k0, k_i (linear); each keeps its own nuisance columns (free responses, offset, lag state),
+which are projected out window by window before the shared coefficients are solved. Each
+window's rows are scaled by its weight (the inverse rms of its averaged, prewhitened noise),
+so the cost is in units of the noise: about the number of rows for an adequate model. One
+window is the single-window fit; several the pooled (joint) fit.
+
+Uncertainty (:func:`covariance`): the sandwich covariance ``A^-1 B A^-1`` of the shared
+parameters, each window's nuisance partialled out, with ``A = J^T J`` from the Jacobian J of
+the weighted (prewhitened) residual and ``B = J^T S J``, S the covariance of the averaged
+residual estimated from the per-move residuals (their scatter over the moves divided by M).
+It holds for coloured noise and closed-loop input noise; without per-move records (M <= 2)
+it falls back to the white-noise formula ``sigma^2 A^-1``.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.linalg import qr, solve_triangular
+
+from galvo_sysid.errors import IdentificationError
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from typing import TypeAlias
+
+    from numpy.typing import NDArray
+
+    from galvo_sysid.ident.refine.window import WindowProblem
+
+    Floats: TypeAlias = Sequence[float] | NDArray[np.float64]
+
+__all__ = ['JointProblem', 'covariance']
+
+
+class JointProblem:
+    """Variable projection over windows of one plant (see the module docs).
+
+    Args:
+        problems: The windows.
+        weights: One weight per window (its rows are multiplied by it).
+        fixed_lag: The amplifier lag [s] if it is not estimated (None: ``x`` holds it).
+    """
+
+    def __init__(self, problems: Sequence[WindowProblem], weights: Floats, *,
+                 fixed_lag: float | None) -> None:
+        self.problems = list(problems)
+        self.t = self.problems[0].t
+        self.n_modes = self.problems[0].n_modes
+        self.fixed_lag = fixed_lag
+        self.n_eval = 0
+        self.set_weights(weights)
+
+    def set_weights(self, weights: Floats) -> None:
+        """Use new window weights (e.g. after prewhitening); forgets the cached solution."""
+        self.weights = np.asarray(weights, dtype=float)
+        self.y_scale = float(np.sqrt(sum(w * w * float(p.yf @ p.yf) for p, w in
+                                         zip(self.problems, self.weights, strict=True)))) or 1.0
+        self._key: bytes | None = None
+        self._cache: tuple[NDArray[np.float64], NDArray[np.float64]] = (np.zeros(0),
+                                                                          np.zeros(0))
+        # per window (phi, Q, R, column scale) of the nuisance QR, and Q of the shared columns
+        self._parts: tuple[list[tuple[NDArray[np.float64], ...]], NDArray[np.float64]] = (
+            [], np.zeros((0, 0)))
+
+    # -- parameters ----------------------------------------------------------------------
+    @property
+    def estimate_lag(self) -> bool:
+        """Whether the lag is a parameter of ``x``."""
+        return self.fixed_lag is None
+
+    def unpack(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64],
+                                                      NDArray[np.float64], float]:
+        """(omega, zeta, lag) from x = [ln omega_i, ln zeta_i, (T_l / T)]."""
+        n = self.n_modes
+        lag = self.fixed_lag if self.fixed_lag is not None else float(x[2 * n]) * self.t
+        return np.exp(x[:n]), np.exp(x[n: 2 * n]), lag
+
+    def pack(self, omega: Floats, zeta: Floats, lag: float) -> NDArray[np.float64]:
+        """The parameter vector of (omega, zeta, lag)."""
+        parts = [np.log(np.asarray(omega, dtype=float)), np.log(np.asarray(zeta, dtype=float))]
+        if self.fixed_lag is None:
+            parts.append(np.array([lag / self.t]))
+        return np.concatenate(parts)
+
+    # -- solve -----------------------------------------------------------------------------
+    def solve(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(shared coefficients [k0, k_i], stacked weighted residual)."""
+        key = x.tobytes()
+        if key == self._key:
+            return self._cache
+        self.n_eval += 1
+        n = self.n_modes
+        omega, zeta, lag = self.unpack(x)
+        f_parts, y_parts = [], []
+        parts: list[tuple[NDArray[np.float64], ...]] = []
+        for prob, wt in zip(self.problems, self.weights, strict=True):
+            phi = prob.columns(omega, zeta, lag)
+            nuis = phi[:, 1 + n:]
+            scale = np.linalg.norm(nuis, axis=0)
+            scale[scale == 0] = 1.0
+            q, r = qr(nuis / scale, mode='economic', check_finite=False)
+            f_parts.append(wt * (phi[:, : 1 + n] - q @ (q.T @ phi[:, : 1 + n])))
+            y_parts.append(wt * (prob.yf - q @ (q.T @ prob.yf)))
+            parts.append((phi, q, r, scale))
+        f_all = np.vstack(f_parts)
+        y_all = np.concatenate(y_parts)
+        scale = np.linalg.norm(f_all, axis=0)
+        scale[scale == 0] = 1.0
+        q_f, r_f = qr(f_all / scale, mode='economic', check_finite=False)
+        shared = solve_triangular(r_f, q_f.T @ y_all, check_finite=False) / scale
+        self._key = key
+        self._cache = (shared, y_all - f_all @ shared)
+        self._parts = (parts, q_f)
+        return self._cache
+
+    def residual(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Weighted residual, scaled by the data's norm (what the optimiser minimises)."""
+        return self.solve(x)[1] / self.y_scale
+
+    def cost(self, x: NDArray[np.float64]) -> float:
+        """Sum of squared weighted residuals (in noise units once weighted by the noise)."""
+        r = self.solve(x)[1]
+        return float(r @ r)
+
+    def jacobian(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Kaufman's variable-projection Jacobian of :meth:`residual`.
+
+        ``-P (d Phi / d x_j) c`` with P the projection onto the orthogonal complement of all
+        linear columns (each window's nuisance, then the shared columns left after it), c the
+        coefficients at x; the Golub-Pereyra term that Kaufman drops is second order at the
+        optimum.
+        """
+        shared = self.solve(x)[0]
+        parts, q_f = self._parts
+        n = self.n_modes
+        omega, zeta, lag = self.unpack(x)
+        v_parts = []
+        for prob, wt, (phi, q, r, scale) in zip(self.problems, self.weights, parts,
+                                                 strict=True):
+            nuis = solve_triangular(r, q.T @ (prob.yf - phi[:, : 1 + n] @ shared),
+                                    check_finite=False) / scale
+            coef = np.concatenate([shared, nuis])
+            derivs = prob.column_derivatives(omega, zeta, lag, phi,
+                                             lag_free=self.estimate_lag)
+            v = np.empty((phi.shape[0], len(derivs)))
+            for j, (idx, dphi) in enumerate(derivs):
+                v[:, j] = dphi @ coef[idx]
+            v_parts.append(wt * (v - q @ (q.T @ v)))
+        v_all = np.vstack(v_parts)
+        v_all -= q_f @ (q_f.T @ v_all)
+        return np.asarray(-v_all / self.y_scale, dtype=np.float64)
+
+    def coefficients(self, x: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+        """Each window's full coefficient vector [shared, its nuisance] at x."""
+        n = self.n_modes
+        omega, zeta, lag = self.unpack(x)
+        shared = self.solve(x)[0]
+        out = []
+        for prob in self.problems:
+            phi = prob.columns(omega, zeta, lag)
+            nuis = np.linalg.lstsq(phi[:, 1 + n:], prob.yf - phi[:, : 1 + n] @ shared,
+                                   rcond=None)[0]
+            out.append(np.concatenate([shared, nuis]))
+        return out
+
+
+def covariance(joint: JointProblem, x: NDArray[np.float64],
+               coefs: Sequence[NDArray[np.float64]]) -> tuple[NDArray[np.float64], str]:
+    """Covariance of [k0, k_i, omega_i, zeta_i, (lag)] and how it was made (see module docs).
+
+    Returns:
+        ``(covariance, 'sandwich' | 'white')``.
+
+    Raises:
+        IdentificationError: The Jacobian is singular.
+    """
+    n = joint.n_modes
+    omega, zeta, lag = joint.unpack(x)
+    phys = np.concatenate([omega, zeta, [joint.t]])   # d x_j -> d physical parameter
+    a_mat: NDArray[np.float64] | None = None
+    b_mat: NDArray[np.float64] | None = None
+    white = any(prob.moves <= 2 for prob in joint.problems)
+    res2 = 0.0
+    rows = 0
+    for prob, wt, coef in zip(joint.problems, joint.weights, coefs, strict=True):
+        phi = prob.columns(omega, zeta, lag)
+        derivs = prob.column_derivatives(omega, zeta, lag, phi, lag_free=joint.estimate_lag)
+        jac = np.empty((phi.shape[0], 1 + n + len(derivs)))
+        jac[:, : 1 + n] = phi[:, : 1 + n]
+        for j, (idx, dphi) in enumerate(derivs):
+            jac[:, 1 + n + j] = (dphi @ coef[idx]) / phys[j]
+        nuis = phi[:, 1 + n:]
+        scale = np.linalg.norm(nuis, axis=0)
+        scale[scale == 0] = 1.0
+        q, _ = qr(nuis / scale, mode='economic', check_finite=False)
+        jt = wt * (jac - q @ (q.T @ jac))
+        a_w = jt.T @ jt
+        a_mat = a_w if a_mat is None else a_mat + a_w
+        if white:
+            resid = wt * (prob.yf - phi @ coef)
+            res2 += float(resid @ resid)
+            rows += resid.size
+            continue
+        dev = prob.apply_whitening(prob.deviations(omega, zeta, lag, coef), axis=1)
+        g = wt * (dev @ jt)
+        m = dev.shape[0]
+        b_w = g.T @ g / (m * (m - 1))
+        b_mat = b_w if b_mat is None else b_mat + b_w
+    assert a_mat is not None
+    d = np.sqrt(np.diag(a_mat))
+    d[d == 0] = 1.0
+    try:
+        a_inv = np.linalg.inv(a_mat / np.outer(d, d)) / np.outer(d, d)
+    except np.linalg.LinAlgError as exc:
+        raise IdentificationError(f'singular Jacobian at the optimum: {exc}') from exc
+    if white:
+        dof = max(rows - a_mat.shape[0] - sum(p.n_linear - 1 - n for p in joint.problems), 1)
+        return np.asarray(a_inv * res2 / dof, dtype=np.float64), 'white'
+    assert b_mat is not None
+    return np.asarray(a_inv @ b_mat @ a_inv, dtype=np.float64), 'sandwich'

@@ -1,0 +1,268 @@
+"""One window's averaged moves as a regression problem, and its moves' scatter.
+
+:class:`WindowProblem` holds a window of M records (current and encoder of one target
+angle): their average, on which the model is fitted, and the moves' deviations from it, from
+which the noise is estimated. Its columns (:meth:`WindowProblem.columns`) are the filtered
+responses of the rigid body and of each unit mode to the averaged current (the linear
+parameters k0, k_i multiply them), each mode's two free-response columns (the ringing the
+previous move left), an offset and the amplifier lag's free response: the window's nuisance.
+
+The current before a record is not recorded; with the computation delay it still acts on the
+first rows. It is taken as the level the records end at (the settled current of the previous
+move, which a positioning move leaves before the next one starts), which removes the bias
+that assuming the record's first sample would leave (the feed-forward starts at sample 0).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.linalg import LinAlgError, qr, solve_toeplitz
+
+from galvo_sysid.errors import InvalidDataError
+from galvo_sysid.ident.filters import fir
+from galvo_sysid.ident.refine.regressors import (
+    FIRST_ROW,
+    Regressors,
+    free_responses,
+    powers,
+    second_difference,
+)
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from typing import TypeAlias
+
+    from numpy.typing import ArrayLike, NDArray
+
+    Floats: TypeAlias = Sequence[float] | NDArray[np.float64]
+
+__all__ = ['MIN_SAMPLES', 'WindowProblem', 'validate', 'whitening_filter']
+
+MIN_SAMPLES = 64
+"""Fewest samples per record the refined fit accepts."""
+
+_MAX_DECAY = 700.0  # exp(-700) is about 1e-304: a lag's decay per sample beyond it is 0
+
+
+def validate(current: ArrayLike, encoder: ArrayLike) -> tuple[NDArray[np.float64],
+                                                               NDArray[np.float64]]:
+    """Records as float arrays (M, N), checked; one record (N,) becomes (1, N).
+
+    Raises:
+        InvalidDataError: Not numeric, different shapes, too short, NaN or Inf.
+    """
+    try:
+        cur = np.asarray(current, dtype=float)
+        enc = np.asarray(encoder, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InvalidDataError(f'records are not numeric arrays: {exc}') from exc
+    if cur.ndim == 1:
+        cur, enc = cur[None, :], enc[None, :] if enc.ndim == 1 else enc
+    if cur.ndim != 2 or enc.shape != cur.shape:
+        raise InvalidDataError(f'current and encoder must both be (M, N) or (N,), got shapes '
+                               f'{np.shape(current)} and {np.shape(encoder)}')
+    if cur.shape[1] < MIN_SAMPLES:
+        raise InvalidDataError(f'records have {cur.shape[1]} samples; the refined fit needs at '
+                               f'least {MIN_SAMPLES}')
+    if not (np.all(np.isfinite(cur)) and np.all(np.isfinite(enc))):
+        raise InvalidDataError('current or encoder contains NaN or Inf')
+    return cur, enc
+
+
+def whitening_filter(dev: NDArray[np.float64], order: int,
+                     scale: float) -> NDArray[np.float64]:
+    """FIR A(q) = 1 + a_1 q^-1 + .. making the per-move noise ``dev`` white (Yule-Walker).
+
+    ``scale`` is the rms of the filtered output: noise below 1e-10 of it is not modelled.
+    """
+    n = dev.shape[1]
+    r = np.array([np.sum(dev[:, lag:] * dev[:, : n - lag]) for lag in range(order + 1)])
+    if not r[0] > scale * scale * 1e-20 * dev.size:  # no noise to model (noise-free data)
+        return np.array([1.0])
+    r = r / r[0] * (1.0 - 1e-9 * np.arange(order + 1) / order)  # slight taper, stays PD
+    try:
+        a = solve_toeplitz(r[:-1], -r[1:])
+    except (ValueError, LinAlgError):
+        return np.array([1.0])
+    return np.concatenate([[1.0], a]) if np.all(np.isfinite(a)) else np.array([1.0])
+
+
+class WindowProblem:
+    """A window's averaged moves, its columns and its moves' scatter (see the module docs).
+
+    Args:
+        current: Current records (M, N), validated.
+        encoder: Encoder records (M, N), start angle removed.
+        sample_period: Sampling period [s].
+        delay: Whole samples of pure delay.
+        fraction: Fractional part of the pure delay [samples].
+        n_modes: Resonant modes.
+    """
+
+    def __init__(self, current: NDArray[np.float64], encoder: NDArray[np.float64], *,
+                 sample_period: float, delay: int, fraction: float, n_modes: int) -> None:
+        self.cur, self.enc = current, encoder
+        self.moves = current.shape[0]
+        self.t = sample_period
+        self.n_modes = n_modes
+        pre = float(current[:, -1].mean())
+        self.regs = Regressors(current.mean(axis=0), sample_period=sample_period, delay=delay,
+                               fraction=fraction, pre=pre)
+        self.first = FIRST_ROW
+        self.n = current.shape[1]
+        self.k = np.arange(self.n, dtype=float)[self.first:]
+        self.yf_raw = second_difference(encoder.mean(axis=0))[self.first:]
+        self.n_linear = 1 + n_modes + 2 * n_modes + 2
+        self._moves_regs: Regressors | None = None
+        self._moves_enc: NDArray[np.float64] | None = None
+        self.set_whitening(None)
+
+    # -- whitening -------------------------------------------------------------------------
+    def set_whitening(self, a: NDArray[np.float64] | None) -> None:
+        """Use the FIR prewhitening filter ``a`` (a[0] = 1) on data and columns, or none."""
+        self.whiten = a
+        self.yf = self.apply_whitening(self.yf_raw)
+
+    def apply_whitening(self, arr: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
+        """Filter ``arr`` along the row ``axis`` (from rest: an invertible lower-triangular map,
+        so no row is lost)."""  # noqa: D205, D209
+        if self.whiten is None:
+            return arr
+        return fir(self.whiten, arr, axis=axis)
+
+    # -- columns ---------------------------------------------------------------------------
+    def columns(self, omega: Floats, zeta: Floats, lag: float, *,
+                whitened: bool = True) -> NDArray[np.float64]:
+        """Regressor matrix (rows, n_linear).
+
+        Columns: rigid body, modes, two free-response columns per mode, offset, and the
+        amplifier lag's free response.
+        """
+        n = self.n_modes
+        _, e = powers(omega, zeta, self.n, self.t)
+        phi = np.empty((self.k.size, self.n_linear))
+        phi[:, : 1 + n] = self.regs.all(omega, zeta, lag, e)[:, self.first:].T
+        phi[:, 1 + n: 1 + 3 * n] = free_responses(omega, zeta, self.n, self.t, e,
+                                                  first=self.first).T
+        phi[:, -2] = 1.0
+        phi[:, -1] = self.lag_free(lag)
+        return self.apply_whitening(phi) if whitened else phi
+
+    def lag_free(self, lag: float) -> NDArray[np.float64]:
+        """Free response of the lag state from the first row on (a unit impulse without lag)."""
+        if lag <= 0:
+            out = np.zeros(self.k.size)
+            out[0] = 1.0
+            return out
+        rate = min(self.t / lag, _MAX_DECAY)
+        return np.asarray(np.exp(-(self.k - self.first) * rate), dtype=np.float64)
+
+    def column_derivatives(self, omega: NDArray[np.float64], zeta: NDArray[np.float64],
+                           lag: float, phi: NDArray[np.float64], *, lag_free: bool) -> list[
+                               tuple[NDArray[np.intp], NDArray[np.float64]]]:
+        """For every nonlinear parameter (ln omega_i, ln zeta_i, then T_l / T if estimated):
+        (affected column indices, d columns / d parameter), by forward differences."""  # noqa: D205, D209
+        n = self.n_modes
+        h = 1e-6
+        # all 2 n single-mode perturbations in one batch: omega_i e^h, then zeta_i e^h
+        w_p = np.concatenate([omega * math.exp(h), omega])
+        z_p = np.concatenate([zeta, zeta * math.exp(h)])
+        _, e = powers(w_p, z_p, self.n, self.t)
+        forced = self.regs.convolve(self.regs.mode_impulses(w_p, z_p, lag, e))[:, self.first:]
+        free = free_responses(w_p, z_p, self.n, self.t, e, first=self.first)
+        blocks = [forced.T, free.T]
+        if lag_free:
+            step = h * self.t
+            blocks += [self.regs.all(omega, zeta, lag + step)[:, self.first:].T,
+                       self.lag_free(lag + step)[:, None]]
+        new = self.apply_whitening(np.hstack(blocks))
+        out: list[tuple[NDArray[np.intp], NDArray[np.float64]]] = []
+        for j in range(2 * n):
+            i = j % n
+            idx = np.array([1 + i, 1 + n + 2 * i, 2 + n + 2 * i])
+            cols = new[:, [j, 2 * n + 2 * j, 2 * n + 2 * j + 1]]
+            out.append((idx, (cols - phi[:, idx]) / h))
+        if lag_free:
+            idx = np.array([*range(1 + n), self.n_linear - 1])
+            out.append((idx, (new[:, 6 * n:] - phi[:, idx]) / h))
+        return out
+
+    # -- scans -----------------------------------------------------------------------------
+    def _candidates(self, lag: float, w_c: NDArray[np.float64],
+                    z_c: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Whitened (forced, free cos, free sin) columns of candidate modes: (m, rows, 3)."""
+        _, e = powers(w_c, z_c, self.n, self.t)
+        forced = self.regs.convolve(self.regs.mode_impulses(w_c, z_c, lag, e))[:, self.first:]
+        free = free_responses(w_c, z_c, self.n, self.t, e, first=self.first)
+        return self.apply_whitening(np.stack([forced, free[0::2], free[1::2]], axis=-1),
+                                    axis=1)
+
+    @staticmethod
+    def _gains(others: NDArray[np.float64], y: NDArray[np.float64],
+               cand: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(cost reduction, forced coefficient) of each candidate's 3 columns after others."""
+        scale = np.linalg.norm(others, axis=0)
+        scale[scale == 0] = 1.0
+        q, _ = qr(others / scale, mode='economic', check_finite=False)
+        r_o = y - q @ (q.T @ y)
+        c_o = cand - q @ (q.T @ cand)
+        gram = np.swapaxes(c_o, 1, 2) @ c_o
+        rhs = np.swapaxes(c_o, 1, 2) @ r_o
+        try:
+            sol = np.linalg.solve(gram, rhs[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            return np.full(cand.shape[0], -1.0), np.zeros(cand.shape[0])
+        gain = np.sum(rhs * sol, axis=1)
+        gain[~np.isfinite(gain)] = -1.0
+        return np.asarray(gain, dtype=np.float64), np.asarray(sol[:, 0], dtype=np.float64)
+
+    def scan(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
+             lag: float, w_c: NDArray[np.float64],
+             z_c: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(cost reduction, residue) of mode i at each candidate (w_c, z_c), others fixed."""
+        n = self.n_modes
+        phi = self.columns(omega, zeta, lag)
+        mine = np.array([1 + i, 1 + n + 2 * i, 2 + n + 2 * i])
+        return self._gains(np.delete(phi, mine, axis=1), self.yf, self._candidates(lag, w_c, z_c))
+
+    def scan_new(self, omega: NDArray[np.float64], zeta: NDArray[np.float64], lag: float,
+                 w_c: NDArray[np.float64], z_c: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Cost reduction of one more mode at each candidate (w_c, z_c), the modes fixed."""
+        phi = self.columns(omega, zeta, lag)
+        gain = self._gains(phi, self.yf, self._candidates(lag, w_c, z_c))[0]
+        return np.maximum(gain, 0.0)
+
+    # -- the moves' scatter ----------------------------------------------------------------
+    def deviations(self, omega: NDArray[np.float64], zeta: NDArray[np.float64], lag: float,
+                   coef: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Each move's filtered residual minus the window mean (unwhitened rows), (M, rows).
+
+        By linearity this is the residual of the moves' deviations from the window mean, whose
+        forced response is one convolution with the model's combined impulse response; the
+        deviations' transforms are computed once per window.
+        """
+        n = self.n_modes
+        if self._moves_regs is None:
+            cur = self.cur
+            self._moves_regs = Regressors(cur - cur.mean(axis=0), sample_period=self.t,
+                                          delay=self.regs.delay, fraction=self.regs.fraction,
+                                          pre=cur[:, -1:] - cur[:, -1].mean())
+            self._moves_enc = second_difference(self.enc - self.enc.mean(axis=0))
+        regs, enc_f = self._moves_regs, self._moves_enc
+        assert enc_f is not None
+        h_lag = regs.lag_impulse(lag)
+        h = coef[1: 1 + n] @ regs.mode_impulses(omega, zeta, lag, h_lag=h_lag) \
+            + coef[0] * lag * h_lag
+        forced = regs.convolve(h[None, :])[0] \
+            + coef[0] * (regs.rigid_double - lag * regs.rigid_single)
+        return np.asarray((enc_f - forced)[:, self.first:], dtype=np.float64)
+
+    def raw_noise_rms(self) -> float:
+        """Rms of the averaged filtered noise from the moves' scatter alone (no model), whitened
+        by the current filter: the rows' noise the fit weighs the window with."""  # noqa: D205, D209
+        dev = second_difference(self.enc - self.enc.mean(axis=0))[:, self.first:]
+        dev = self.apply_whitening(dev, axis=1)
+        return float(np.sqrt(np.mean(dev**2) / max(self.moves - 1, 1)))
