@@ -186,17 +186,6 @@ def _bilinear(num: tuple[float, ...], den: tuple[float, ...], sample_period: flo
     return ((bz[0] / az[0], bz[1] / az[0], bz[2] / az[0]), (1.0, az[1] / az[0], az[2] / az[0]))
 
 
-def _plant_response(plant: DiscreteStateSpace, omega: NDArray[np.float64],
-                    sample_period: float) -> NDArray[np.complex128]:
-    """Return c (zI - a)^-1 b at z = exp(j omega T) (batched linear solves)."""
-    n = plant.a.shape[0]
-    z = np.exp(1j * omega * sample_period)
-    m = z[:, None, None] * np.eye(n)[None] - plant.a[None]
-    rhs = np.broadcast_to(plant.b.astype(complex), (len(z), n))[..., None]
-    x = np.linalg.solve(m, rhs)[..., 0]
-    return np.asarray(x @ plant.c, dtype=np.complex128)
-
-
 MIN_GAIN_MARGIN_DB = 6.0
 """Smallest gain margin an automatic design accepts [dB]."""
 
@@ -294,7 +283,7 @@ def _design(model: PlantModel, cfg: ControllerConfig) -> Controller:
     unit = Controller(gain=1.0, sections=tuple(secs), sample_period=sample_period)
     plant = discretize_plant(model.modal, model.dynamics, sample_period)
     om = np.array([wc])
-    loop = unit.frequency_response(om) * _plant_response(plant, om, sample_period)
+    loop = unit.frequency_response(om) * plant.frequency_response(om, sample_period)
     return Controller(gain=float(1 / abs(loop[0])), sections=tuple(secs),
                       sample_period=sample_period)
 
@@ -303,8 +292,8 @@ def loop_frequency_response(controller: Controller, plant: DiscreteStateSpace,
                             omega: ArrayLike) -> NDArray[np.complex128]:
     """Return the loop gain L = C P at ``omega`` [rad/s] for a discretised plant."""
     om = np.asarray(omega, dtype=float)
-    return controller.frequency_response(om) * _plant_response(plant, om,
-                                                                controller.sample_period)
+    return controller.frequency_response(om) * plant.frequency_response(
+        om, controller.sample_period)
 
 
 def closed_loop_poles(controller: Controller, plant: DiscreteStateSpace) -> NDArray[np.complex128]:
