@@ -56,7 +56,8 @@ current and encoder records of ordinary positioning moves: topics /galvo/current
 /galvo/encoder (galvo_sysid_msgs/msg/MoveSamples, one message per move and signal).
 Moves are grouped by target angle; every 100 moves of one angle form a window, which is
 averaged and fitted (paper: Method A + ARX, or the refined fit), then judged for drift
-against the reference model (Table I).
+against the reference model: a plant-model file (--model), by default the packaged model
+of the paper's scanner (Table I). Data of another scanner are said to be so, not drift.
 """
 
 _MAIN_EPILOG = """\
@@ -109,6 +110,18 @@ def parse_angle(text: str) -> float:
     return round(value, 12)
 
 
+def _nonnegative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        msg = f'not a whole number: {text!r}'
+        raise argparse.ArgumentTypeError(msg) from None
+    if value < 0:
+        msg = f'must be >= 0: {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
 def _positive(kind: type[int] | type[float]) -> Any:
     def parse(text: str) -> float:
         try:
@@ -153,8 +166,9 @@ def _add_simulate(sub: Any) -> None:
         'simulate', formatter_class=_Formatter,
         help='write a bag from the simulated scanner (fast, no ROS)',
         description=(
-            'Run the closed-loop simulator (plant of Table I, DSP delay + amplifier lag,\n'
-            'quantised encoder, coloured noise, positioning controller) and write its moves\n'
+            "Run the closed-loop simulator (the plant of a model file, by default the paper's\n"
+            'scanner of Table I; DSP delay + amplifier lag, quantised encoder, coloured\n'
+            'noise, a positioning controller designed from the model) and write its moves\n'
             'into a rosbag2 bag: topics /galvo/current and /galvo/encoder (MoveSamples), the\n'
             'same messages the galvo_driver node publishes, with header stamps and log times\n'
             'in simulated time (starting at 0). No ROS graph is used: it runs as fast as the\n'
@@ -165,7 +179,11 @@ def _add_simulate(sub: Any) -> None:
             '  galvo-sysid simulate --out /tmp/nominal --angles 1psi --moves-per-angle 200\n'
             '  galvo-sysid simulate --out /tmp/paper --angles paper --moves-per-angle 200\n'
             '  galvo-sysid simulate --out /tmp/drift --angles 1psi --moves-per-angle 1000 \\\n'
-            '      --drift omega_1=-0.002'))
+            '      --drift omega_1=-2e-5/move\n'
+            '  galvo-sysid simulate --out /tmp/step --angles 1psi 3psi --moves-per-angle 400 \\\n'
+            '      --step k0=0.97@400 --effect coulomb_friction:friction_current=0.01\n'
+            '  galvo-sysid simulate --out /tmp/long --angles 1psi --record-length 1024 \\\n'
+            '      --model galvo_sysid/model/data/paper_table1.yaml   # from a source checkout'))
     p.add_argument('--out', required=True, metavar='BAG', help='bag directory to create')
     p.add_argument('--angles', nargs='+', default=['1psi'], metavar='ANGLE',
                    help="target angles [deg]; '2psi' = 2 x 0.3 deg; 'paper' = the paper's 19")
@@ -174,12 +192,22 @@ def _add_simulate(sub: Any) -> None:
     p.add_argument('--seed', type=int, default=0, help='noise seed (same seed, same bag)')
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                    help='rosbag2 storage format')
-    p.add_argument('--drift', action='append', default=[], metavar='PARAM=RATE',
-                   help='relative change of a modal parameter per window of moves, e.g. '
-                        'omega_1=-0.002 (k0, k1.., omega_1.., zeta_1..); repeatable')
-    p.add_argument('--step', action='append', default=[], metavar='PARAM=CHANGE@MOVE',
-                   help='relative step change of a parameter at a move number, e.g. '
-                        'k0=-0.1@400; repeatable')
+    p.add_argument('--model', metavar='FILE', default=None,
+                   help="plant-model file of the scanner (default: the packaged model of the "
+                        "paper's scanner); sets the sample period, record and dwell lengths")
+    p.add_argument('--record-length', type=_positive(int), default=None, metavar='N',
+                   help="recorded samples per move (default: the model's)")
+    p.add_argument('--dwell-length', type=_nonnegative_int, default=None, metavar='N',
+                   help="samples between a record's end and the next move (default: the "
+                        "model's)")
+    p.add_argument('--drift', action='append', default=[], metavar='PARAM=RATE/UNIT[@START]',
+                   help='a parameter drifting: relative change per second (/s) or per move '
+                        '(/move) from START on (same unit, default 0), e.g. '
+                        'omega_1=-2e-5/move or k0=-0.001/s@2 (k0, k1.., omega_1.., zeta_1.., '
+                        'lag_time_constant, ...); repeatable')
+    p.add_argument('--step', action='append', default=[], metavar='PARAM=FACTOR@WHEN',
+                   help='a parameter multiplied by FACTOR from move WHEN on (or from WHEN '
+                        'seconds: @1.5s), e.g. k0=0.9@400; repeatable')
     p.add_argument('--effect', action='append', default=[], metavar='NAME[:K=V,...]',
                    help='add a physical effect the reference model lacks (see the '
                         'simulator docs), e.g. coulomb_friction:friction_current=0.05')
@@ -199,6 +227,11 @@ def _add_identify(sub: Any) -> None:
             'too and marked partial. Moves that cannot be used (NaN, unpaired, duplicate\n'
             'move_id, wrong length, zero angle, ...) are listed as rejected with the reason;\n'
             'the rest is used.\n\n'
+            "The scanner is the plant-model file of --model (default: the paper's scanner):\n"
+            'its modes, bands, input dynamics and sample period are what is identified, and\n'
+            'deviations are shown from it. Data that do not match it (another sample period,\n'
+            'a mode outside its band, a residual far above the noise) are said so in one\n'
+            'line: the scanner is another one (galvo-sysid commission makes its model).\n\n'
             'methods: refined  structured output-error fit of the modal model (default)\n'
             '         paper-A  the paper: average the moves, fictitious input, ARX(15,15)\n'
             '         paper-B  the paper: concatenate the moves instead of averaging'),
@@ -208,13 +241,17 @@ def _add_identify(sub: Any) -> None:
             '  drift level), the pooled estimate with standard deviations, the rejected moves.\n'
             '  --json prints one object {"windows": [...], "pooled": {...}, "rejected": [...]}\n'
             '  whose window fields are named as in ModalParameters, plus "partial" and\n'
-            '  "drift" (level OK/WARN/ERROR and deviations); "pooled" also says "pooling"\n'
-            '  (joint or inverse-variance), "pooled_windows" and "pooling_note" (why the\n'
-            '  joint fit was not used, else null).\n\n'
+            '  "drift" (level OK/WARN/ERROR/MISMATCH and deviations); "pooled" also says\n'
+            '  "pooling" (joint or inverse-variance), "pooled_windows" and "pooling_note"\n'
+            '  (why the joint fit was not used, else null); "model" names the model file,\n'
+            '  "model_mismatch" why the data do not match it (else null) and\n'
+            '  "mismatched_windows" the windows concerned.\n'
+            '  Exit code 1 when no window was identified (e.g. none matches the model).\n\n'
             'examples:\n'
             '  galvo-sysid identify bags/nominal\n'
             "  galvo-sysid identify bags/drifting --json | jq '.windows[].drift.level'\n"
             '  galvo-sysid identify run.mcap --method paper-A --plot bode.png\n'
+            '  galvo-sysid identify field2 --model scanner2.yaml\n'
             '  galvo-sysid identify field1 --sysid-params config/sysid.yaml \\\n'
             '      --watchdog-params config/watchdog.yaml   # as the deployed nodes are set'))
     p.add_argument('bag', help='rosbag2 bag: directory, .mcap or .db3 file')
@@ -236,12 +273,17 @@ def _add_identify(sub: Any) -> None:
                         'the sysid node parameter na, 15')
     p.add_argument('--nb', type=_positive(int), default=None, metavar='N',
                    help='ARX order of B[q]; default: the sysid node parameter nb, 15')
+    p.add_argument('--model', metavar='FILE', default=None,
+                   help="plant-model file of the scanner (default: the sysid parameter model, "
+                        "else the packaged model of the paper's scanner)")
     p.add_argument('--sysid-params', metavar='YAML',
-                   help="the sysid node's --params-file (e.g. config/sysid.yaml): window "
-                        'and pairing settings, method, na, nb; options given here win')
+                   help="the sysid node's --params-file (e.g. config/sysid.yaml): model, "
+                        'window and pairing settings, method, na, nb; options given here win')
     p.add_argument('--watchdog-params', metavar='YAML',
                    help="the watchdog node's --params-file (e.g. config/watchdog.yaml): "
-                        'reference model and tolerances of the drift verdicts')
+                        'reference model (its model; "" = the packaged paper model, as the '
+                        'node) and tolerances of the drift verdicts (default: the reference '
+                        'is the --model)')
     p.add_argument('--jobs', type=_positive(int), default=None, metavar='N',
                    help='windows fitted in parallel (default: one per CPU); the numbers do '
                         'not depend on it')
@@ -375,11 +417,15 @@ class _Progress:
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from galvo_sysid.field.simulate import simulate_bag
+    from galvo_sysid.model import load_model
+    from galvo_sysid.sim.simulator import SimulatorConfig
 
+    config = SimulatorConfig(plant=load_model(args.model or None),
+                             record_length=args.record_length, dwell_length=args.dwell_length)
     summary = simulate_bag(args.out, angles=_angles(args.angles),
                            moves_per_angle=args.moves_per_angle, seed=args.seed,
                            storage=args.storage, drift=args.drift, steps=args.step,
-                           effects=args.effect)
+                           effects=args.effect, config=config, model_path=args.model or '')
     print(summary, file=sys.stderr)
     return 0
 
@@ -412,12 +458,23 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         from galvo_sysid.field.plots import check_plot_path
 
         check_plot_path(args.plot)
-    sysid: dict[str, Any] = {'window_size': 100, 'method': 'refined', 'na': 15, 'nb': 15}
+    from galvo_sysid.model import load_model
+    from galvo_sysid.monitor.online import mismatch_message
+
+    sysid: dict[str, Any] = {'window_size': 100, 'method': 'refined', 'na': 15, 'nb': 15,
+                             'model': ''}
     if args.sysid_params:
         sysid.update(load_node_parameters(args.sysid_params, 'sysid'))
-    for name in ('window_size', 'method', 'na', 'nb'):
+    for name in ('window_size', 'method', 'na', 'nb', 'model'):
         if getattr(args, name) is not None:
             sysid[name] = getattr(args, name)
+    model_path = sysid['model'] or ''
+    if not isinstance(model_path, str):
+        from galvo_sysid.errors import ConfigurationError
+
+        msg = f'sysid parameter model must be a file name, got {model_path!r}'
+        raise ConfigurationError(msg)
+    model = load_model(model_path or None)
     monitor = None
     if args.watchdog_params:
         monitor = monitor_from_parameters(load_node_parameters(args.watchdog_params,
@@ -429,7 +486,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                              min_partial=args.min_partial, namespace=args.namespace,
                              monitor=monitor, na=int(sysid['na']), nb=int(sysid['nb']),
                              windower=sysid, jobs=args.jobs or _cpus(),
-                             pooling=args.pooling, progress=progress)
+                             pooling=args.pooling, model=model, model_path=model_path,
+                             progress=progress)
     finally:
         progress.close()
     if args.json:
@@ -442,6 +500,9 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
         path = save_identification_plot(found, args.plot)
         print(f'identify: plot written to {path}', file=sys.stderr)
+    if found.model_mismatch is not None:  # one plain line: another scanner, not drift
+        print(mismatch_message(found.model_mismatch, model_path=found.model), file=sys.stderr)
+        return 0 if found.windows else 1
     if not found.windows:
         print(f'identify: no window identified in {args.bag} (need at least '
               f'{args.min_partial or found.window_size // 2} usable moves of one target angle)',
@@ -472,28 +533,51 @@ def _json_safe(value: Any) -> Any:
 
 def format_identification(found: BagIdentification) -> str:
     """The readable report ``identify`` prints without ``--json``."""
-    from galvo_sysid.model import REFERENCE_MODEL
+    from galvo_sysid.model import REFERENCE_MODEL, model_label
 
-    ref = REFERENCE_MODEL.parameters()
+    reference = found.reference if found.reference is not None else REFERENCE_MODEL
+    ref = reference.parameters()
+    ref_name = found.reference_name or model_label(None)
     names = list(ref)
     info = found.info
     span = (info.end - info.start) * 1e-9
     lines = [f'bag: {info.path} ({info.storage}), {found.moves:g} moves, {span:.2f} s; '
-             f'method {found.method}, windows of {found.window_size} moves',
+             f'method {found.method}, windows of {found.window_size} moves; model '
+             f'{found.model_name}',
              '']
+
+    def dev(values: dict[str, float], name: str) -> float:
+        return 100 * (values.get(name, math.nan) - ref[name]) / ref[name]
+
     if found.windows:
-        lines.append('deviation from the reference model (Table I) [%]:')
+        lines.append(f'deviation from the reference model {ref_name} [%]:')
         head = f'{"win":>4} {"angle":>8} {"moves":>5} {"fit%":>6} ' + ' '.join(
             f'{n:>8}' for n in names) + '  drift'
         lines.append(head)
+        unresolved_seen = False
         for w in found.windows:
             values = w.result.model.parameters()
-            devs = ' '.join(f'{100 * (values[n] - ref[n]) / ref[n]:8.3f}' for n in names)
+            unresolved = {f'{p}{i}' for i, r in enumerate(w.result.resolved, start=1)
+                          if not r for p in ('k', 'omega_', 'zeta_')}
+            unresolved_seen |= bool(unresolved & set(names))
+            devs = ' '.join(f'{"unres.":>8}' if n in unresolved else f'{dev(values, n):8.3f}'
+                            for n in names)
             mark = '*' if w.partial else ' '
             lines.append(f'{w.window_index:>4} {w.target_angle:+8.3f} {w.result.moves:>4}{mark} '
                          f'{w.result.fit_percent:6.2f} {devs}  {w.drift.level_name}')
         if any(w.partial for w in found.windows):
             lines.append('  * partial window (end of bag)')
+        if unresolved_seen:
+            lines.append("  unres.: a mode the window's data do not resolve (not judged)")
+        lines.append('')
+    if found.mismatched:
+        lines.append(f'{len(found.mismatched)} window(s) do not match the model '
+                     f'{found.model_name} (not identified):')
+        for m in found.mismatched[:10]:
+            lines.append(f'  window {m.window_index} ({m.target_angle:+g} deg, {m.moves} '
+                         f'moves): {m.reason}')
+        if len(found.mismatched) > 10:
+            lines.append(f'  ... and {len(found.mismatched) - 10} more (see --json)')
         lines.append('')
     if found.pooled is not None:
         pooled = found.pooled
@@ -505,9 +589,9 @@ def format_identification(found: BagIdentification) -> str:
         if found.pooling_note:
             lines.append(f'  note: {found.pooling_note}')
         for n in names:
-            dev = 100 * (values[n] - ref[n]) / ref[n]
-            lines.append(f'  {n:<8} {values[n]:12.6g} +- {stds.get(n, math.nan):<10.3g} '
-                         f'({dev:+.3f} % vs reference {ref[n]:.6g})')
+            lines.append(f'  {n:<8} {values.get(n, math.nan):12.6g} +- '
+                         f'{stds.get(n, math.nan):<10.3g} ({dev(values, n):+.3f} % vs '
+                         f'reference {ref[n]:.6g})')
         lines.append(f'  input delay {pooled.input_delay * 1e6:.2f} us, '
                      f'amplifier lag {pooled.lag_time_constant * 1e6:.2f} us')
         lines.append('')

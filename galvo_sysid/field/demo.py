@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 __all__ = ['main']
 
 NS = '/demo_scanner'
-LEVELS = ('OK', 'WARN', 'ERROR', 'STALE')
+LEVELS = ('OK', 'WARN', 'ERROR', 'STALE', 'MISMATCH')
 
 
 @dataclass

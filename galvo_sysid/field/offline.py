@@ -17,6 +17,13 @@ to the identified windows at once, started from
 results), several times sharper on the weakly excited third mode. If the joint fit fails,
 the inverse-variance combination is reported instead, with the reason. For the paper
 methods the pooled estimate is the inverse-variance combination.
+
+One plant model (a model file, default the paper's scanner) is used throughout: the windower
+sets aside moves of another sample period, every window and the joint fit are identified with
+it, and (unless another monitor is given) the drift is judged against it. Windows whose data
+do not match it (:class:`~galvo_sysid.errors.ModelMismatchError`) are listed with the reason,
+and the result says plainly that the data do not match the model
+(:attr:`BagIdentification.model_mismatch`).
 """
 
 from __future__ import annotations
@@ -32,8 +39,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from galvo_sysid.errors import ConfigurationError, GalvoSysidError
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError, ModelMismatchError
 from galvo_sysid.field.bags import BagInfo, BagReader, SetAside
+from galvo_sysid.model import model_label
 from galvo_sysid.monitor.drift import monitor_from_parameters
 from galvo_sysid.monitor.pairing import WINDOWER_PARAMETERS
 
@@ -43,6 +51,7 @@ if TYPE_CHECKING:
     from concurrent.futures import Future
 
     from galvo_sysid.ident.identify import IdentificationResult
+    from galvo_sysid.model import ModalModel, PlantModel
     from galvo_sysid.monitor.drift import DriftMonitor, DriftVerdict
     from galvo_sysid.monitor.pairing import Rejection, Window
 
@@ -52,6 +61,7 @@ __all__ = [
     'POOLINGS',
     'WINDOWER_PARAMETERS',
     'BagIdentification',
+    'MismatchedWindow',
     'WindowResult',
     'identify_bag',
     'load_node_parameters',
@@ -169,6 +179,28 @@ class WindowResult:
 
 
 @dataclass(frozen=True)
+class MismatchedWindow:
+    """A window whose data do not match the plant model (not identified).
+
+    Attributes:
+        window_index: The windower's running number of the window.
+        target_angle: Signed target angle [deg].
+        moves: Moves in the window.
+        reason: Why the data do not match (one line).
+    """
+
+    window_index: int
+    target_angle: float
+    moves: int
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: the fields by name."""
+        return {'window_index': self.window_index, 'target_angle': _clean(self.target_angle),
+                'moves': self.moves, 'reason': self.reason}
+
+
+@dataclass(frozen=True)
 class BagIdentification:
     """Everything ``galvo-sysid identify`` found in a bag.
 
@@ -185,6 +217,13 @@ class BagIdentification:
         pooled_windows: Windows that went into ``pooled``.
         pooling_note: Why the pooling is not the one asked for (e.g. the joint fit failed),
             else None.
+        model: The plant-model file used ('': the packaged paper model).
+        mismatched: Windows whose data do not match the model.
+        model_mismatch: Why the data do not match the model (the first window's reason, or
+            that of moves of another sample period), else None.
+        reference: The drift monitor's reference model (what deviations are taken from).
+        reference_name: How messages name it (its file).
+        sample_period: The model's sample period [s].
     """
 
     info: BagInfo
@@ -197,13 +236,26 @@ class BagIdentification:
     pooling: str = ''
     pooled_windows: int = 0
     pooling_note: str | None = None
+    model: str = ''
+    mismatched: tuple[MismatchedWindow, ...] = ()
+    model_mismatch: str | None = None
+    reference: ModalModel | None = None
+    reference_name: str = ''
+    sample_period: float = 1e-5
+
+    @property
+    def model_name(self) -> str:
+        """How messages name the model (its file, or ``paper_table1 (packaged)``)."""
+        return model_label(self.model)
 
     def to_dict(self) -> dict[str, Any]:
-        """The ``--json`` object: ``{"windows": [...], "pooled": {...}, "rejected": [...]}``.
+        """The ``--json`` object: ``{"windows": [...], "pooled": {...}, "rejected": [...],
+        "model": ..., "model_mismatch": ..., "mismatched_windows": [...]}``.
 
         ``pooled`` holds the result's fields plus ``pooling``, ``pooled_windows`` and
-        ``pooling_note``.
-        """
+        ``pooling_note``; ``model_mismatch`` says why the data do not match the model (null
+        when they do).
+        """  # noqa: D205
         pooled = None
         if self.pooled is not None:
             pooled = self.pooled.to_dict()
@@ -213,6 +265,9 @@ class BagIdentification:
             'windows': [w.to_dict() for w in self.windows],
             'pooled': pooled,
             'rejected': list(self.rejected),
+            'model': self.model_name,
+            'model_mismatch': self.model_mismatch,
+            'mismatched_windows': [w.to_dict() for w in self.mismatched],
         }
 
 
@@ -221,7 +276,8 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
                  namespace: str | None = None, monitor: DriftMonitor | None = None,
                  na: int = 15, nb: int = 15, windower: Mapping[str, Any] | None = None,
                  jobs: int = 1, pooling: str | None = None,
-                 joint_windows: int = JOINT_WINDOWS,
+                 joint_windows: int = JOINT_WINDOWS, model: PlantModel | None = None,
+                 model_path: str = '',
                  progress: Callable[[int, int], None] | None = None) -> BagIdentification:
     """Identify every window of moves in a bag (see the module docs for the path taken).
 
@@ -231,7 +287,7 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
         window_size: Moves per window (the sysid node's default is 100).
         min_partial: Smallest unfinished window identified at the end; default half a window.
         namespace: Scanner namespace when the bag holds several.
-        monitor: Drift monitor (default: reference = Table I, default tolerances).
+        monitor: Drift monitor (default: reference = the model, default tolerances).
         na: ARX order of A[q] (paper pipeline, also the refined fit's start), as the sysid
             node's parameter ``na``.
         nb: ARX order of B[q], as the sysid node's ``nb``.
@@ -245,15 +301,21 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
             and the only choice, for the paper methods); see the module docs.
         joint_windows: Windows held for the joint fit at most (memory): beyond, the oldest
             window of the target angle holding the most is let go, so every angle stays in.
+        model: The scanner's plant model (default: the paper's): the sample period the
+            moves must have, what every window and the joint fit identify.
+        model_path: Its file, for the messages ('': the packaged paper model).
         progress: Called as ``progress(messages_done, messages_total)`` while reading.
 
     Raises:
         BagError: Missing, corrupt or truncated bag, no galvo topics, wrong topic type.
         ConfigurationError: Unknown method or bad window settings.
     """
+    from galvo_sysid.model import PAPER_MODEL
     from galvo_sysid.monitor.drift import DriftMonitor
     from galvo_sysid.monitor.online import fit_window
     from galvo_sysid.monitor.pairing import MoveWindower
+
+    plant = PAPER_MODEL if model is None else model
 
     if method not in METHODS:
         msg = f'unknown method {method!r}; choose one of {", ".join(METHODS)}'
@@ -277,11 +339,15 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
     kept: list[Window] = []  # the joint fit's windows
     settings = {k: v for k, v in dict(windower or {}).items() if k in WINDOWER_PARAMETERS}
     settings['window_size'] = window_size
+    settings['sample_period'] = plant.sample_period
     pairer = MoveWindower(**settings)
-    judge = DriftMonitor() if monitor is None else monitor
+    judge = DriftMonitor(reference=plant.modal, reference_name=model_label(model_path)) \
+        if monitor is None else monitor
     rejected: list[dict[str, Any]] = []
+    mismatched: list[MismatchedWindow] = []
     # exactly the sysid node's fit function (nodes/sysid_node.py: SysidNode._fit_function)
-    fit = functools.partial(fit_window, method=method, options={'na': int(na), 'nb': int(nb)})
+    fit = functools.partial(fit_window, method=method, model=plant,
+                            options={'na': int(na), 'nb': int(nb)})
     pending: collections.deque[tuple[Window, Future[IdentificationResult] | None]] = \
         collections.deque()
     windows: list[WindowResult] = []
@@ -292,6 +358,14 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
             window, future = pending.popleft()
             try:
                 result = fit(window) if future is None else future.result()
+            except ModelMismatchError as err:  # said plainly: the scanner is another one
+                why = _one_line(err)
+                mismatched.append(MismatchedWindow(window.index, window.target_angle,
+                                                   window.moves, why))
+                reason = f'window {window.index} does not match the model: {why}'
+                rejected.extend({'move_id': mid, 'target_angle': window.target_angle,
+                                 'stamp': None, 'reason': reason} for mid in window.move_ids)
+                continue
             except Exception as err:  # like the sysid node: a failed fit loses its window only
                 text = _one_line(err) if isinstance(err, GalvoSysidError) else \
                     f'unexpected {type(err).__name__}: {_one_line(err)}'
@@ -334,12 +408,17 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
             submit(window)
         rejected.extend(rejection_to_dict(r) for r in pairer.pop_rejections())
         drain(0)
-    pooled, used, note = _pooled([w.result for w in windows], kept, pooling=pooling)
+    pooled, used, note = _pooled([w.result for w in windows], kept, pooling=pooling,
+                                 model=plant)
+    why = mismatched[0].reason if mismatched else pairer.period_mismatch
     return BagIdentification(info=info, method=method, window_size=window_size,
                              windows=tuple(windows), pooled=pooled, rejected=tuple(rejected),
                              moves=total / 2, pooling=used if windows else '',
                              pooled_windows=len(kept) if used == 'joint' else len(windows),
-                             pooling_note=note)
+                             pooling_note=note, model=model_path, mismatched=tuple(mismatched),
+                             model_mismatch=why, reference=judge.reference,
+                             reference_name=judge.reference_name,
+                             sample_period=plant.sample_period)
 
 
 def _keep(kept: list[Window], window: Window, *, limit: int) -> None:
@@ -359,8 +438,8 @@ def _keep(kept: list[Window], window: Window, *, limit: int) -> None:
         del kept[drop]
 
 
-def _pooled(results: list[IdentificationResult], kept: list[Window], *,
-            pooling: str) -> tuple[IdentificationResult | None, str, str | None]:
+def _pooled(results: list[IdentificationResult], kept: list[Window], *, pooling: str,
+            model: PlantModel) -> tuple[IdentificationResult | None, str, str | None]:
     """(pooled estimate, pooling used, note) of the identified windows."""
     from galvo_sysid.ident.identify import identify_joint, pool_results
 
@@ -378,7 +457,8 @@ def _pooled(results: list[IdentificationResult], kept: list[Window], *,
     try:
         joint = identify_joint([(w.current, w.encoder) for w in kept],
                                sample_period=periods.pop(), initial=combined,
-                               target_angle=combined.target_angle, keep_initial_damping=True)
+                               target_angle=combined.target_angle, keep_initial_damping=True,
+                               model=model)
     except GalvoSysidError as err:
         return combined, 'inverse-variance', f'joint fit failed: {_one_line(err)}'
     return joint, 'joint', None

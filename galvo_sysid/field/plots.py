@@ -41,7 +41,7 @@ __all__ = [
 ]
 
 LEVEL_COLORS = {'OK': 'tab:green', 'WARN': 'tab:orange', 'ERROR': 'tab:red',
-                'STALE': 'tab:gray'}
+                'STALE': 'tab:gray', 'MISMATCH': 'tab:purple'}
 """Marker colour of each drift level."""
 
 _FORMATS = {'.png', '.pdf', '.svg'}
@@ -72,7 +72,8 @@ def plot_bode(ax_mag: Any, ax_phase: Any, models: Sequence[ModalModel], *,
         models: One identified model per window, in window order.
         reference: The reference model (Table I by default).
         pooled: The pooled estimate, if any.
-        frequency: Frequencies [Hz]; default up to the Nyquist frequency of tau = 10 us.
+        frequency: Frequencies [Hz]; default up to the Nyquist frequency of tau = 10 us (the
+            paper's scanner).
     """
     from matplotlib import colormaps
 
@@ -126,7 +127,8 @@ def plot_trends(axes: Sequence[Any], windows: Sequence[WindowResult], *,
                   else LEVEL_COLORS['OK'] for w in windows]
         j = all_names.index(name)
         dev = 100 * np.array([w.drift.relative_deviation[j] for w in windows])
-        std = 100 * np.array([w.drift.relative_std[j] for w in windows])
+        std = 100 * np.array([w.drift.relative_std[j] if j < len(w.drift.relative_std)
+                              else np.nan for w in windows])
         tol = 100 * np.array([w.drift.tolerance[j] for w in windows])
         ax.fill_between(x, -tol, tol, color='tab:green', alpha=0.12, step='mid', lw=0)
         ax.axhline(0.0, color='k', lw=0.6)
@@ -145,9 +147,15 @@ def plot_trends(axes: Sequence[Any], windows: Sequence[WindowResult], *,
 
 
 def identification_figure(found: BagIdentification, *,
-                          reference: ModalModel = REFERENCE_MODEL) -> Any:
-    """One page: Bode plot (left) and parameter trends with tolerance bands (right)."""
+                          reference: ModalModel | None = None) -> Any:
+    """One page: Bode plot (left) and parameter trends with tolerance bands (right).
+
+    ``reference`` defaults to the one the windows were judged against (``found.reference``).
+    """
     from matplotlib.figure import Figure
+
+    if reference is None:
+        reference = found.reference if found.reference is not None else REFERENCE_MODEL
 
     fig = Figure(figsize=(16, 9), layout='constrained')
     outer = fig.add_gridspec(1, 2, width_ratios=(1.0, 1.25))
@@ -155,7 +163,8 @@ def identification_figure(found: BagIdentification, *,
     ax_mag = fig.add_subplot(left[0])
     ax_phase = fig.add_subplot(left[1], sharex=ax_mag)
     plot_bode(ax_mag, ax_phase, [w.result.model for w in found.windows], reference=reference,
-              pooled=None if found.pooled is None else found.pooled.model)
+              pooled=None if found.pooled is None else found.pooled.model,
+              frequency=_frequency(found.sample_period))
     names = list(reference.parameters())
     cols = 2
     rows = -(-len(names) // cols)

@@ -19,6 +19,7 @@ Plant changes and effects are given as short texts (the command line's syntax):
 
 from __future__ import annotations
 
+import math
 import re
 import time
 from dataclasses import dataclass, field, replace
@@ -33,6 +34,7 @@ from galvo_sysid.field.bags import (
     BagWriter,
     stamp_to_ns,
 )
+from galvo_sysid.model.files import model_label
 
 if TYPE_CHECKING:
     import os
@@ -107,6 +109,10 @@ class SimulationSummary:
         seconds: Wall-clock time taken [s].
         size: Bytes on disk.
         changes: Human-readable plant changes and effects.
+        sample_period: The scanner's sample period [s].
+        record_length: Recorded samples per move.
+        dwell_length: Samples between a record's end and the next move.
+        model: The plant-model file simulated ('': the packaged paper model).
     """
 
     path: Path
@@ -116,12 +122,18 @@ class SimulationSummary:
     seconds: float
     size: int
     changes: tuple[str, ...] = field(default=())
+    sample_period: float = math.nan
+    record_length: int = 0
+    dwell_length: int = 0
+    model: str = ''
 
     def __str__(self) -> str:
         extra = f'; {", ".join(self.changes)}' if self.changes else ''
         return (f'simulate: {self.moves} moves over {len(self.angles)} angle(s), '
-                f'{self.scanner_time:.2f} s of scanner time{extra} -> {self.path} '
-                f'({self.size / 1e6:.2f} MB) in {self.seconds:.2f} s')
+                f'{self.scanner_time:.2f} s of scanner time; scanner {model_label(self.model)}: '
+                f'sample period {self.sample_period * 1e6:.4g} us, records of '
+                f'{self.record_length} samples + {self.dwell_length} dwell{extra} -> '
+                f'{self.path} ({self.size / 1e6:.2f} MB) in {self.seconds:.2f} s')
 
 
 def write_moves(bag: BagWriter, moves: Iterable[Move], *, frame_id: str = '') -> int:
@@ -147,7 +159,7 @@ def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
                  moves_per_angle: int = 200, seed: int = 0, storage: str = 'mcap',
                  drift: Sequence[str] = (), steps: Sequence[str] = (),
                  effects: Sequence[str] = (), config: SimulatorConfig | None = None,
-                 frame_id: str = '') -> SimulationSummary:
+                 frame_id: str = '', model_path: str = '') -> SimulationSummary:
     """Simulate a schedule of moves and write them into a new bag.
 
     Args:
@@ -163,6 +175,8 @@ def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
         config: Base simulator configuration (default: the paper's scanner); its plant model
             sets the sample period, record and dwell lengths unless the config overrides them.
         frame_id: Header frame id of the messages.
+        model_path: The file of the config's plant model, for the summary ('': the packaged
+            paper model).
 
     Raises:
         ConfigurationError: Bad schedule, change or effect.
@@ -197,4 +211,6 @@ def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
                *(f'effect {e}' for e in effects))
     return SimulationSummary(path=path, moves=count, angles=tuple(angles),
                              scanner_time=sim.time, seconds=time.perf_counter() - start,
-                             size=size, changes=changes)
+                             size=size, changes=changes, sample_period=sim.config.sample_period,
+                             record_length=sim.config.record, dwell_length=sim.config.dwell,
+                             model=model_path)

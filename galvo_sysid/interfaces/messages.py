@@ -7,7 +7,9 @@ float64 arrays, no header) that a rosbags message class accepts; :func:`fill` se
 existing message (rclpy's float64[] fields get an ``array.array``).
 
 - ``MoveSamples`` <-> :class:`~galvo_sysid.monitor.pairing.MoveHalf`
-- ``ModalParameters`` <-> :class:`~galvo_sysid.ident.identify.IdentificationResult`
+- ``ModalParameters`` <-> :class:`~galvo_sysid.ident.identify.IdentificationResult` plus its
+  :class:`ResultStatus` (identified, or why not: the data do not match the model, the fit
+  failed; the model file used)
 - ``DriftStatus`` <-> :class:`~galvo_sysid.monitor.drift.DriftVerdict`
 - :func:`diagnostic_values`: the key/values of a verdict for ``diagnostic_msgs/KeyValue``.
 """
@@ -16,12 +18,19 @@ from __future__ import annotations
 
 import array
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from galvo_sysid.errors import InvalidDataError
-from galvo_sysid.monitor.drift import LEVEL_NAMES, STALE, DriftVerdict
+from galvo_sysid.monitor.drift import (
+    LEVEL_NAMES,
+    MISMATCH,
+    STATUS_NAMES,
+    STATUS_OK,
+    DriftVerdict,
+)
 from galvo_sysid.monitor.pairing import SIGNALS, MoveHalf
 
 if TYPE_CHECKING:
@@ -30,6 +39,7 @@ if TYPE_CHECKING:
     from galvo_sysid.ident.identify import IdentificationResult
 
 __all__ = [
+    'ResultStatus',
     'diagnostic_values',
     'drift_status_fields',
     'fill',
@@ -40,6 +50,8 @@ __all__ = [
     'result_from_msg',
     'seconds_to_stamp',
     'stamp_to_seconds',
+    'status_from_msg',
+    'unidentified_fields',
     'verdict_from_msg',
 ]
 
@@ -101,9 +113,37 @@ def _floats(values: Any) -> np.ndarray[Any, np.dtype[np.float64]]:
     return np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(-1))
 
 
-def modal_parameters_fields(result: IdentificationResult, *,
-                            window_index: int) -> dict[str, Any]:
-    """Fields of a ``ModalParameters`` message (without its header) for one window's result."""
+@dataclass(frozen=True)
+class ResultStatus:
+    """What a ``ModalParameters`` message says besides the parameters.
+
+    Attributes:
+        status: ``STATUS_OK`` (0), ``STATUS_MISMATCH`` (1) or ``STATUS_FAILED`` (2)
+            (:data:`~galvo_sysid.monitor.drift.STATUS_OK`, ...).
+        message: Why the status is not OK ('' when OK).
+        model: The plant-model file the window was identified with ('': the packaged model
+            of the paper's scanner).
+    """
+
+    status: int = STATUS_OK
+    message: str = ''
+    model: str = ''
+
+    @property
+    def ok(self) -> bool:
+        """Whether the window was identified."""
+        return self.status == STATUS_OK
+
+
+def modal_parameters_fields(result: IdentificationResult, *, window_index: int,
+                            model: str = '') -> dict[str, Any]:
+    """Fields of a ``ModalParameters`` message (without its header) for one window's result.
+
+    ``model`` is the plant-model file the window was identified with ('': the packaged paper
+    model); ``resolved`` is the result's (every mode resolved if the result does not say).
+    """
+    n = len(result.residues)
+    resolved = [bool(r) for r in result.resolved] if len(result.resolved) == n else [True] * n
     return {
         'window_index': int(window_index),
         'target_angle': float(result.target_angle),
@@ -118,7 +158,74 @@ def modal_parameters_fields(result: IdentificationResult, *,
         'natural_frequencies_std': _floats(result.natural_frequencies_std),
         'damping_ratios_std': _floats(result.damping_ratios_std),
         'fit_percent': float(result.fit_percent),
+        'resolved': resolved,
+        'status': STATUS_OK,
+        'status_message': '',
+        'model': str(model),
     }
+
+
+def unidentified_fields(*, window_index: int, target_angle: float, moves: int, n_modes: int,
+                        status: int, status_message: str, model: str = '') -> dict[str, Any]:
+    """Fields of a ``ModalParameters`` message for a window that was not identified.
+
+    The parameters are NaN (lists of ``n_modes``, the model's), no mode is resolved, and
+    ``status`` / ``status_message`` say why (e.g. ``STATUS_MISMATCH``: the data do not match
+    the model).
+
+    Raises:
+        InvalidDataError: ``status`` is OK or unknown, or ``n_modes`` is negative.
+    """
+    if not 0 < int(status) < len(STATUS_NAMES):
+        raise InvalidDataError(f'a window not identified needs a status other than OK, got '
+                               f'{status!r}')
+    if int(n_modes) < 0:
+        raise InvalidDataError(f'n_modes must be >= 0, got {n_modes}')
+    nan = np.full(int(n_modes), np.nan)
+    return {
+        'window_index': int(window_index),
+        'target_angle': float(target_angle),
+        'moves': int(moves),
+        'input_delay': math.nan,
+        'k0': math.nan,
+        'residues': nan.copy(),
+        'natural_frequencies': nan.copy(),
+        'damping_ratios': nan.copy(),
+        'k0_std': math.nan,
+        'residues_std': nan.copy(),
+        'natural_frequencies_std': nan.copy(),
+        'damping_ratios_std': nan.copy(),
+        'fit_percent': math.nan,
+        'resolved': [False] * int(n_modes),
+        'status': int(status),
+        'status_message': ' '.join(str(status_message).split()),
+        'model': str(model),
+    }
+
+
+def _uint(value: Any) -> int:
+    """A ``uint8`` field's value (rclpy gives an int, some readers a byte)."""
+    return int.from_bytes(value, 'little') if isinstance(value, bytes) else int(value)
+
+
+def status_from_msg(msg: Any) -> ResultStatus:
+    """The :class:`ResultStatus` of a ``ModalParameters`` message.
+
+    Messages recorded before the status existed (no such fields) are identified windows of
+    the packaged model.
+
+    Raises:
+        InvalidDataError: A field has the wrong type or the status is unknown.
+    """
+    try:
+        status = _uint(getattr(msg, 'status', STATUS_OK))
+        out = ResultStatus(status=status, message=str(getattr(msg, 'status_message', '')),
+                           model=str(getattr(msg, 'model', '')))
+    except (TypeError, ValueError, OverflowError) as err:
+        raise InvalidDataError(f'bad ModalParameters message: {err}') from err
+    if not 0 <= out.status < len(STATUS_NAMES):
+        raise InvalidDataError(f'ModalParameters: unknown status {out.status}')
+    return out
 
 
 def _tuple(values: Any) -> tuple[float, ...]:
@@ -130,7 +237,8 @@ def result_from_msg(msg: Any, *, method: str = 'refined',
     """An :class:`~galvo_sysid.ident.identify.IdentificationResult` from a ``ModalParameters``.
 
     The message does not carry the method or the amplifier lag; they are taken from the
-    arguments.
+    arguments. Its status is read by :func:`status_from_msg` (a window not identified gives
+    NaN parameters here). ``resolved`` may be absent (older messages: not said).
 
     Raises:
         InvalidDataError: A field is missing or the mode arrays differ in length.
@@ -144,8 +252,9 @@ def result_from_msg(msg: Any, *, method: str = 'refined',
         residues_std = _tuple(msg.residues_std)
         frequencies_std = _tuple(msg.natural_frequencies_std)
         damping_std = _tuple(msg.damping_ratios_std)
+        resolved = tuple(bool(r) for r in getattr(msg, 'resolved', ()))
         if {len(frequencies), len(damping), len(residues_std), len(frequencies_std),
-                len(damping_std)} != {len(residues)}:
+                len(damping_std)} != {len(residues)} or len(resolved) not in (0, len(residues)):
             raise InvalidDataError('ModalParameters: mode arrays differ in length')
         return IdentificationResult(
             target_angle=float(msg.target_angle), moves=int(msg.moves),
@@ -153,7 +262,7 @@ def result_from_msg(msg: Any, *, method: str = 'refined',
             k0=float(msg.k0), residues=residues, natural_frequencies=frequencies,
             damping_ratios=damping, k0_std=float(msg.k0_std), residues_std=residues_std,
             natural_frequencies_std=frequencies_std, damping_ratios_std=damping_std,
-            fit_percent=float(msg.fit_percent), method=method)
+            fit_percent=float(msg.fit_percent), method=method, resolved=resolved)
     except (AttributeError, TypeError, ValueError, OverflowError) as err:
         if isinstance(err, InvalidDataError):
             raise
@@ -179,15 +288,14 @@ def verdict_from_msg(msg: Any) -> DriftVerdict:
         InvalidDataError: A field is missing or the level is unknown.
     """
     try:
-        level = msg.level
-        level = int.from_bytes(level, 'little') if isinstance(level, bytes) else int(level)
+        level = _uint(msg.level)
         verdict = DriftVerdict(window_index=int(msg.window_index), level=level,
                                names=tuple(str(n) for n in msg.names),
                                relative_deviation=_tuple(msg.relative_deviation),
                                tolerance=_tuple(msg.tolerance), message=str(msg.message))
     except (AttributeError, TypeError, ValueError, OverflowError) as err:
         raise InvalidDataError(f'bad DriftStatus message: {err}') from err
-    if not 0 <= verdict.level <= STALE:
+    if not 0 <= verdict.level <= MISMATCH:
         raise InvalidDataError(f'DriftStatus: unknown level {verdict.level}')
     return verdict
 

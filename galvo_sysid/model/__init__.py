@@ -22,7 +22,13 @@ from galvo_sysid.model.dynamics import (
     zoh,
 )
 from galvo_sysid.model.effects import EFFECT_NAMES, EFFECTS, Effect, parse_effect
-from galvo_sysid.model.files import load_model, model_from_yaml, model_to_yaml, save_model
+from galvo_sysid.model.files import (
+    load_model,
+    model_from_yaml,
+    model_label,
+    model_to_yaml,
+    save_model,
+)
 from galvo_sysid.model.modal import ModalModel, default_bands, parameter_names, relative_errors
 from galvo_sysid.model.paper import (
     PAPER_ANGLES,
@@ -57,6 +63,7 @@ __all__ = [
     'load_model',
     'modal_state_space',
     'model_from_yaml',
+    'model_label',
     'model_to_yaml',
     'parameter_names',
     'parse_effect',

@@ -51,10 +51,12 @@ if TYPE_CHECKING:
 
 __all__ = [
     'FORMAT',
+    'PACKAGED_LABEL',
     'VERSION',
     'load_model',
     'model_from_dict',
     'model_from_yaml',
+    'model_label',
     'model_to_dict',
     'model_to_yaml',
     'packaged_model_path',
@@ -233,6 +235,14 @@ def save_model(model: PlantModel, path: str | os.PathLike[str]) -> Path:
     tmp.write_text(model_to_yaml(model), encoding='utf-8')
     tmp.replace(out)
     return out
+
+
+PACKAGED_LABEL = 'paper_table1 (packaged)'
+
+
+def model_label(path: str | os.PathLike[str] | None = None) -> str:
+    """How messages name a model file: the path, or ``'paper_table1 (packaged)'`` for None/''."""
+    return PACKAGED_LABEL if path is None or str(path) == '' else str(path)
 
 
 def load_model(path: str | os.PathLike[str] | None = None) -> PlantModel:

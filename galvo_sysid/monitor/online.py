@@ -9,7 +9,9 @@
   :class:`~galvo_sysid.monitor.drift.DriftMonitor`, and STALE when no result came for a while.
 - :class:`SysidTask` ties a :class:`~galvo_sysid.monitor.pairing.MoveWindower` and a
   :class:`WindowFitter` together: ``add(half)`` never blocks on a fit, rejections are
-  reported grouped by reason, counters say what happened to every move.
+  reported grouped by reason, counters say what happened to every move, and
+  :meth:`SysidTask.health` says how identification goes (windows that do not match the plant
+  model are an error, said plainly: the scanner is not the one the model describes).
 
 The sysid node (:mod:`galvo_sysid.nodes.sysid_node`) only converts messages and forwards
 them; tests and benchmarks drive these objects directly.
@@ -26,13 +28,16 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from galvo_sysid.errors import ConfigurationError, GalvoSysidError
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError, ModelMismatchError
+from galvo_sysid.model.files import model_label
+from galvo_sysid.monitor.drift import ERROR, OK, STATUS_OK, WARN
 from galvo_sysid.monitor.pairing import MoveWindower, summarize_rejections
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping
 
     from galvo_sysid.ident.identify import IdentificationResult
+    from galvo_sysid.model import PlantModel
     from galvo_sysid.monitor.drift import DriftMonitor, DriftVerdict, ModalEstimate
     from galvo_sysid.monitor.pairing import MoveHalf, Window
 
@@ -43,17 +48,41 @@ __all__ = [
     'WatchdogTask',
     'WindowFitter',
     'fit_window',
+    'mismatch_message',
 ]
 
 
-def fit_window(window: Window, *, method: str = 'refined', n_modes: int = 3,
+def fit_window(window: Window, *, method: str = 'refined', model: PlantModel | None = None,
                options: Mapping[str, Any] | None = None) -> IdentificationResult:
-    """Identify one window with :func:`~galvo_sysid.ident.identify.identify_window` (picklable)."""
+    """Identify one window with :func:`~galvo_sysid.ident.identify.identify_window` (picklable).
+
+    Args:
+        window: The window.
+        method: Identification method.
+        model: The scanner's plant model (modes, bands, input dynamics, sample period;
+            None: the paper's).
+        options: Further options of ``identify_window`` (``na``, ``nb``, ...).
+
+    Raises:
+        ModelMismatchError: The window's data do not match the model.
+        GalvoSysidError: Bad data or a failed fit.
+    """
     from galvo_sysid.ident.identify import identify_window
 
     return identify_window(window.current, window.encoder, sample_period=window.sample_period,
-                           method=method, target_angle=window.target_angle, n_modes=n_modes,
+                           method=method, target_angle=window.target_angle, model=model,
                            **dict(options or {}))
+
+
+def mismatch_message(reason: str, *, model_path: str | None) -> str:
+    """The one line that says data do not match a model file, and what to do.
+
+    Example: ``the data do not match model scanner.yaml: no physical mode 2 in the band ...;
+    run galvo-sysid commission``.
+    """
+    why = ' '.join(reason.split())
+    return (f'the data do not match model {model_label(model_path)}: {why}; run galvo-sysid '
+            f'commission')
 
 
 def _child_init(parent: int) -> None:
@@ -107,6 +136,8 @@ class FitOutcome:
         error: Why the fit failed (None on success).
         queued: Seconds the window waited in the queue.
         fit_time: Seconds the fit took.
+        mismatch: The fit failed because the data do not match the plant model
+            (:class:`~galvo_sysid.errors.ModelMismatchError`; ``error`` says why).
     """
 
     window: Window
@@ -114,6 +145,7 @@ class FitOutcome:
     error: str | None
     queued: float
     fit_time: float
+    mismatch: bool = False
 
 
 _STOP = object()
@@ -153,7 +185,9 @@ class WindowFitter:
         self.fitted = 0
         """Windows identified."""
         self.failed = 0
-        """Windows whose fit failed."""
+        """Windows whose fit failed (not counting mismatches)."""
+        self.mismatched = 0
+        """Windows whose data do not match the plant model."""
         self.dropped = 0
         """Windows dropped because the queue was full."""
         self._closed = False
@@ -216,35 +250,42 @@ class WindowFitter:
                 return
             window, queued_at = item
             start = time.monotonic()
-            result, error = self._fit_one(window)
+            result, error, mismatch = self._fit_one(window)
             end = time.monotonic()
             with self._cond:
-                if result is None:
-                    self.failed += 1
-                else:
+                if result is not None:
                     self.fitted += 1
+                elif mismatch:
+                    self.mismatched += 1
+                else:
+                    self.failed += 1
             try:
-                self._on_done(FitOutcome(window, result, error, start - queued_at, end - start))
+                self._on_done(FitOutcome(window, result, error, start - queued_at, end - start,
+                                         mismatch=mismatch))
             except Exception:  # a failing callback must not stop the worker
                 import traceback
 
                 traceback.print_exc()
 
-    def _fit_one(self, window: Window) -> tuple[IdentificationResult | None, str | None]:
+    def _fit_one(self, window: Window
+                 ) -> tuple[IdentificationResult | None, str | None, bool]:
+        """(result, why it failed, whether the data do not match the model)."""
         try:
             if self._pool is None:
-                return self._fit(window), None
+                return self._fit(window), None, False
             try:
-                return self._pool.submit(self._fit, window).result(), None
+                return self._pool.submit(self._fit, window).result(), None, False
             except concurrent.futures.process.BrokenProcessPool:
                 with self._cond:  # a child died: start a new pool for the next windows
                     if not self._closed:
                         self._pool = self._new_pool()
-                return None, 'identification process died'
+                return None, 'identification process died', False
+        except ModelMismatchError as err:
+            return None, ' '.join(str(err).split()), True
         except GalvoSysidError as err:
-            return None, str(err)
+            return None, str(err), False
         except Exception as err:  # keep the node alive, say what happened
-            return None, f'unexpected {type(err).__name__}: {err}'
+            return None, f'unexpected {type(err).__name__}: {err}', False
 
 
 class RateLimitedLog:
@@ -307,23 +348,33 @@ class SysidTask:
         fit: ``fit(window) -> IdentificationResult`` (see :class:`WindowFitter`).
         on_result: Called with each :class:`FitOutcome` (on a worker thread).
         warn: Where warnings go (rate limited by the task).
-        windower: Keyword arguments of :class:`~galvo_sysid.monitor.pairing.MoveWindower`.
+        windower: Keyword arguments of :class:`~galvo_sysid.monitor.pairing.MoveWindower`
+            (``sample_period``: the model's, so moves of another scanner are set aside).
         queue_size: Windows waiting for a fit at most.
         processes: Child processes for the fits (0: fit on a worker thread).
         warnings_per_second: Most warning lines a second.
+        model_path: The plant-model file the fits use ('' or None: the packaged paper
+            model), for the messages.
     """
 
     def __init__(self, fit: Callable[[Window], IdentificationResult],
                  on_result: Callable[[FitOutcome], None], *, warn: Callable[[str], None],
                  windower: Mapping[str, Any] | None = None, queue_size: int = 8,
-                 processes: int = 0, warnings_per_second: int = 20) -> None:
+                 processes: int = 0, warnings_per_second: int = 20,
+                 model_path: str | None = None) -> None:
         self.windower = MoveWindower(**dict(windower or {}))
         self._warn = RateLimitedLog(warn, per_second=warnings_per_second)
         self._on_result = on_result
+        self.model_path = model_path or ''
         self.fitter = WindowFitter(fit, self._done, queue_size=queue_size, processes=processes)
         self.halves_received = 0
         self.windows_completed = 0
         self._last_input = time.monotonic()
+        self._lock = threading.Lock()
+        self.last_mismatch: str | None = None
+        """Why the latest window that did not match the model did not (None: none so far)."""
+        self.latest_mismatched = False
+        """Whether the latest finished window did not match the model."""
 
     def add(self, half: MoveHalf) -> list[Window]:
         """Take one half; queue the windows it completed (returned) and report rejections."""
@@ -368,23 +419,80 @@ class SysidTask:
             for line in summarize_rejections(rejections):
                 self._warn(line, key=line.split(': ', 1)[-1])
 
+    def mismatch_text(self, reason: str) -> str:
+        """The line saying the data do not match this task's model (:func:`mismatch_message`)."""
+        return mismatch_message(reason, model_path=self.model_path)
+
     def _done(self, outcome: FitOutcome) -> None:
-        if outcome.error is not None:
-            w = outcome.window
+        w = outcome.window
+        with self._lock:
+            if outcome.result is not None:
+                self.latest_mismatched = False
+            elif outcome.mismatch:
+                self.latest_mismatched = True
+                self.last_mismatch = outcome.error or 'unknown reason'
+        if outcome.mismatch:
+            self._warn(f'window {w.index} ({w.target_angle:g} deg, {w.moves} moves) not '
+                       f'identified: {self.mismatch_text(outcome.error or "")}',
+                       key='model mismatch')
+        elif outcome.error is not None:
             self._warn(f'window {w.index} ({w.target_angle:g} deg, {w.moves} moves) not '
                        f'identified: {outcome.error}', key='fit failed')
         self._on_result(outcome)
 
     def stats(self) -> dict[str, int]:
-        """Counters: halves received, moves accepted/rejected, windows, resets, queue."""
+        """Counters: halves received, moves accepted/rejected (and of those, halves of
+        another sample period than the model's), windows identified / failed / not matching
+        the model / dropped, resets, queue."""  # noqa: D205, D209
         w = self.windower
         f = self.fitter
         return {'halves_received': self.halves_received, 'moves_accepted': w.moves_accepted,
-                'moves_rejected': w.moves_rejected, 'pending_halves': w.pending,
+                'moves_rejected': w.moves_rejected,
+                'halves_period_mismatched': w.period_mismatches, 'pending_halves': w.pending,
                 'open_windows': w.open_windows, 'windows_completed': self.windows_completed,
                 'windows_identified': f.fitted, 'windows_failed': f.failed,
-                'windows_dropped': f.dropped, 'windows_waiting': f.waiting,
-                'resets': w.resets}
+                'windows_mismatched': f.mismatched, 'windows_dropped': f.dropped,
+                'windows_waiting': f.waiting, 'resets': w.resets}
+
+    def health(self, since: Mapping[str, int], *,
+               now: Mapping[str, int] | None = None) -> tuple[int, str]:
+        """How identification goes between the counters ``since`` and ``now``.
+
+        Args:
+            since: Counters of an earlier :meth:`stats` (the last report's).
+            now: Counters now (default: :meth:`stats`).
+
+        Returns:
+            ``(level, message)``: ERROR (2) when windows did not match the model since then
+            or the latest window did not (or moves came with another sample period than the
+            model's), saying so with the reason; WARN (1) when moves were set aside or windows
+            failed or were dropped since then; else OK (0) with the windows identified.
+        """
+        now = self.stats() if now is None else now
+        # (counters of a windower replaced by new settings start again: never below 0)
+        new = {k: max(0, now[k] - since.get(k, 0)) for k in
+               ('moves_rejected', 'windows_failed', 'windows_dropped', 'windows_identified',
+                'windows_mismatched', 'halves_period_mismatched')}
+        with self._lock:
+            latest, why = self.latest_mismatched, self.last_mismatch
+        period = self.windower.period_mismatch
+        if new['halves_period_mismatched'] and period is not None:
+            return ERROR, (f'moves set aside since the last report: '
+                           f'{self.mismatch_text(period)}')
+        if new['windows_mismatched'] or latest:
+            count = new['windows_mismatched']
+            lead = f'{count} window(s) not identified since the last report: ' if count else \
+                'the latest window was not identified: '
+            return ERROR, lead + self.mismatch_text(why or 'unknown reason')
+        trouble = [f'{new["moves_rejected"]} move(s) set aside'] if new['moves_rejected'] else []
+        if new['windows_failed']:
+            trouble.append(f'{new["windows_failed"]} window(s) not identified (fit failed)')
+        if new['windows_dropped']:
+            trouble.append(f'{new["windows_dropped"]} window(s) dropped (fits too slow)')
+        if trouble:
+            return WARN, '; '.join(trouble) + ' since the last report'
+        return OK, (f'{now["windows_identified"]} windows identified, {now["moves_accepted"]} '
+                    f'moves used')
 
     def close(self, *, timeout: float = 5.0) -> None:
         """Finish the queued fits (up to ``timeout``) and stop the workers."""
@@ -420,9 +528,11 @@ class WatchdogTask:
         """Seconds since the last result (None before the first)."""
         return None if self._last_time is None else self._clock() - self._last_time
 
-    def on_result(self, result: ModalEstimate, *, window_index: int) -> DriftVerdict:
-        """Judge a result; the state is fresh again."""
-        verdict = self.monitor.assess(result, window_index=window_index)
+    def on_result(self, result: ModalEstimate, *, window_index: int, status: int = STATUS_OK,
+                  status_message: str = '') -> DriftVerdict:
+        """Judge a result (its ``status`` not OK: MISMATCH); the state is fresh again."""
+        verdict = self.monitor.assess(result, window_index=window_index, status=status,
+                                      status_message=status_message)
         self.last_verdict = verdict
         self._last_time = self._clock()
         self.windows_judged += 1

@@ -165,6 +165,9 @@ class MoveWindower:
             signs).
         max_buffered_samples: Most samples (current and encoder together) held in open windows.
         first_index: Index of the first window handed out (to continue a numbering).
+        sample_period: The sample period the records must have [s] (the plant model's): a
+            move of another period (relative difference over 1e-6) is set aside, the reason
+            naming both periods; 0 accepts any period.
 
     Raises:
         ConfigurationError: On an out-of-range setting.
@@ -173,7 +176,8 @@ class MoveWindower:
     def __init__(self, *, window_size: int = 100, samples: int = 0, max_samples: int = 65536,
                  min_samples: int = 32, pair_timeout: float = 1.0, time_jump: float = 1.0,
                  angle_resolution: float = 1e-6, max_pending: int = 2000, max_windows: int = 64,
-                 max_buffered_samples: int = 20_000_000, first_index: int = 0) -> None:
+                 max_buffered_samples: int = 20_000_000, first_index: int = 0,
+                 sample_period: float = 0.0) -> None:
         if int(window_size) < 2:
             raise ConfigurationError(f'window_size must be >= 2, got {window_size}')
         if int(min_samples) < 1 or int(max_samples) < int(min_samples):
@@ -189,6 +193,11 @@ class MoveWindower:
             raise ConfigurationError('max_pending and max_windows must be >= 1')
         if int(max_buffered_samples) < 2 * int(window_size) * int(min_samples):
             raise ConfigurationError('max_buffered_samples cannot hold one window')
+        period = float(sample_period)
+        if not (period == 0 or _finite_positive(period)):
+            raise ConfigurationError(f'sample_period must be 0 or positive and finite, got '
+                                     f'{sample_period}')
+        self.sample_period = period
         self.window_size = int(window_size)
         self.samples = int(samples)
         self.max_samples = int(max_samples)
@@ -214,6 +223,11 @@ class MoveWindower:
         """Moves paired and buffered or handed out in windows (evicted ones are taken off)."""
         self.moves_rejected = 0
         """Rejections issued so far (moves set aside, plus repeated halves)."""
+        self.period_mismatches = 0
+        """Halves whose sample period is not :attr:`sample_period` (each move set aside once;
+        its partner is counted too)."""
+        self.period_mismatch: str | None = None
+        """The latest reason a move was set aside for its sample period (None: never)."""
 
     # -- state -------------------------------------------------------------------------
     @property
@@ -353,6 +367,12 @@ class MoveWindower:
             return 'zero target angle'
         if not _finite_positive(half.sample_period):
             return f'bad sample period {half.sample_period!r} s in {half.signal}'
+        expected = self.sample_period
+        if expected and abs(half.sample_period - expected) > 1e-6 * expected:
+            self.period_mismatches += 1
+            self.period_mismatch = (f"the data's sample period {half.sample_period:.6g} s "
+                                    f"differs from the model's {expected:.6g} s")
+            return self.period_mismatch
         data = half.data
         if data.ndim != 1:
             return f'{half.signal} record is not one-dimensional'

@@ -102,7 +102,9 @@ class ParamSpec:
     """One declared parameter: default, description and (for numbers) an inclusive range.
 
     A ``low``/``high`` of None leaves that side open (the check is done in Python; ROS
-    ranges need both ends, so a half-open range is declared without a ROS range).
+    ranges need both ends, so a half-open range is declared without a ROS range). A default
+    of None declares an optional number: not set unless given (a parameter file, the
+    command line, a live change), its value None until then.
     """
 
     name: str
@@ -119,6 +121,9 @@ class ParamSpec:
         text = self.description
         if self.choices:
             text += f' (one of: {", ".join(self.choices)})'
+        if self.default is None:  # optional: dynamically typed, not set until given
+            return ParameterDescriptor(description=text + ' (optional number)',
+                                       read_only=self.read_only, dynamic_typing=True)
         d = ParameterDescriptor(description=text, read_only=self.read_only)
         if self.low is not None and self.high is not None and not self.exclusive_low:
             if isinstance(self.default, bool):
@@ -135,6 +140,9 @@ class ParamSpec:
         """Why ``value`` is not acceptable, or None."""
         if self.choices and value not in self.choices:
             return f'{self.name} must be one of {list(self.choices)}, got {value!r}'
+        if self.default is None and value is not None and (
+                isinstance(value, bool) or not isinstance(value, int | float)):
+            return f'{self.name} must be a number, got {value!r}'
         values: Sequence[Any]
         values = value if isinstance(value, list | tuple) else [value]
         for v in values:
@@ -173,6 +181,20 @@ class ParameterSet:
         if reason is not None:
             raise ConfigurationError(reason)
         node.add_on_set_parameters_callback(self._on_set)
+
+    def extend(self, specs: Sequence[ParamSpec]) -> None:
+        """Declare more parameters (e.g. ones that depend on a model read at start-up).
+
+        Raises:
+            ConfigurationError: A given value is not acceptable.
+        """
+        for s in specs:
+            self._node.declare_parameter(s.name, s.default, s.descriptor())
+            self.specs[s.name] = s
+            self.values[s.name] = self._node.get_parameter(s.name).value
+        reason = self.check(self.values)
+        if reason is not None:
+            raise ConfigurationError(reason)
 
     def check(self, values: dict[str, Any]) -> str | None:
         """Why a set of values is not acceptable, or None."""

@@ -6,6 +6,13 @@ identified ``ModalParameters`` on ``galvo/modal_parameters`` (reliable, transien
 The logic is :class:`galvo_sysid.monitor.online.SysidTask`; fits run on a worker thread (by default
 in a child process), never in the subscription callbacks.
 
+The scanner's plant model is the file of the read-only parameter ``model`` ('' = the packaged
+model of the paper's scanner), read at start-up (a bad file: one line on stderr, exit code 2):
+it sets the modes, bands, input dynamics and the sample period the moves must have. A window
+whose data do not match it is published with ``status = STATUS_MISMATCH``, NaN parameters
+and the reason, and the identification diagnostic turns ERROR: the scanner is not the one
+the model describes (run ``galvo-sysid commission``).
+
 Run: ``sysid --ros-args --params-file config/sysid.yaml [-r __ns:=/scanner_1]``.
 """
 
@@ -25,7 +32,10 @@ from galvo_sysid.interfaces.messages import (
     fill_header,
     modal_parameters_fields,
     move_half_from_msg,
+    unidentified_fields,
 )
+from galvo_sysid.model import PlantModel, load_model, model_label
+from galvo_sysid.monitor.drift import ERROR, OK, STATUS_MISMATCH, WARN
 from galvo_sysid.monitor.online import FitOutcome, SysidTask, fit_window
 from galvo_sysid.monitor.pairing import WINDOWER_PARAMETERS
 from galvo_sysid.nodes.framework import (
@@ -50,8 +60,12 @@ if TYPE_CHECKING:
 __all__ = ['PARAMETERS', 'SysidNode', 'main']
 
 METHODS = ('refined', 'paper-A', 'paper-B')
+_LEVEL_BYTES = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN,
+                ERROR: DiagnosticStatus.ERROR}
 
 PARAMETERS = (
+    ParamSpec('model', '', 'plant-model file of the scanner ("": the packaged model of the '
+              "paper's scanner); read at start-up", read_only=True),
     ParamSpec('window_size', 100, 'moves of one signed target angle per identification window',
               2, 100_000),
     ParamSpec('samples', 0, 'expected samples per record (0: the first move of a window '
@@ -105,11 +119,13 @@ class SysidNode(Node):
         self.log = logger(self)
         self.params = ParameterSet(self, PARAMETERS, validate=_validate, apply=self._apply)
         v = self.params.values
+        self.model: PlantModel = load_model(v['model'] or None)
         self.results = self.create_publisher(ModalParameters, RESULT_TOPIC, results_qos())
         self.task = SysidTask(self._fit_function(v), self._publish,
                               warn=self.log.warning, windower=self._windower_args(v),
                               queue_size=v['queue_size'], processes=v['fit_processes'],
-                              warnings_per_second=v['warnings_per_second'])
+                              warnings_per_second=v['warnings_per_second'],
+                              model_path=v['model'])
         qos = moves_qos(v['qos_depth'], reliability=v['qos_reliability'])
         self.create_subscription(MoveSamples, CURRENT_TOPIC,
                                  functools.partial(self._on_half, signal='current'), qos)
@@ -127,15 +143,15 @@ class SysidNode(Node):
             f'identifying windows of {v["window_size"]} moves ({v["method"]}) from '
             f'{self.resolve_topic_name(CURRENT_TOPIC)} and '
             f'{self.resolve_topic_name(ENCODER_TOPIC)} -> '
-            f'{self.resolve_topic_name(RESULT_TOPIC)}')
+            f'{self.resolve_topic_name(RESULT_TOPIC)}; model {model_label(v["model"])}: '
+            f'{self.model}')
 
-    @staticmethod
-    def _windower_args(values: dict[str, Any]) -> dict[str, Any]:
-        return {k: values[k] for k in WINDOWER_PARAMETERS}
+    def _windower_args(self, values: dict[str, Any]) -> dict[str, Any]:
+        return {**{k: values[k] for k in WINDOWER_PARAMETERS},
+                'sample_period': self.model.sample_period}
 
-    @staticmethod
-    def _fit_function(values: dict[str, Any]) -> functools.partial[Any]:
-        return functools.partial(fit_window, method=values['method'],
+    def _fit_function(self, values: dict[str, Any]) -> functools.partial[Any]:
+        return functools.partial(fit_window, method=values['method'], model=self.model,
                                  options={'na': values['na'], 'nb': values['nb']})
 
     def _apply(self, values: dict[str, Any], changed: set[str]) -> None:
@@ -163,11 +179,19 @@ class SysidNode(Node):
         self.task.add(half)
 
     def _publish(self, outcome: FitOutcome) -> None:
-        if outcome.result is None:
-            return
         w = outcome.window
-        msg = fill(ModalParameters(),
-                   modal_parameters_fields(outcome.result, window_index=w.index))
+        model = self.params.values['model']
+        if outcome.result is None:
+            if outcome.mismatch:  # said plainly downstream: not identified, and why
+                msg = fill(ModalParameters(), unidentified_fields(
+                    window_index=w.index, target_angle=w.target_angle, moves=w.moves,
+                    n_modes=self.model.n_modes, status=STATUS_MISMATCH,
+                    status_message=self.task.mismatch_text(outcome.error or ''), model=model))
+                fill_header(msg, stamp=w.last_stamp)
+                self.results.publish(msg)
+            return
+        msg = fill(ModalParameters(), modal_parameters_fields(outcome.result,
+                                                              window_index=w.index, model=model))
         fill_header(msg, stamp=w.last_stamp)
         self.results.publish(msg)
         r = outcome.result
@@ -182,24 +206,20 @@ class SysidNode(Node):
         self.log.info('counters: ' + ', '.join(f'{k}={v}' for k, v in s.items()))
 
     def _publish_diagnostics(self) -> None:
-        """Counters on /diagnostics; WARN when moves were set aside or windows lost lately."""
+        """Counters on /diagnostics: ERROR when windows do not match the model, WARN when moves
+        were set aside or windows lost lately (:meth:`SysidTask.health`)."""  # noqa: D205, D209
         now = self.task.stats()
-        new = {k: now[k] - self._reported.get(k, 0) for k in
-               ('moves_rejected', 'windows_failed', 'windows_dropped', 'windows_identified')}
+        level, message = self.task.health(self._reported, now=now)
         self._reported = now
-        trouble = [f'{new["moves_rejected"]} move(s) set aside'] if new['moves_rejected'] else []
-        if new['windows_failed']:
-            trouble.append(f'{new["windows_failed"]} window(s) not identified')
-        if new['windows_dropped']:
-            trouble.append(f'{new["windows_dropped"]} window(s) dropped (fits too slow)')
         status = DiagnosticStatus()
         scanner = scanner_name(self, self.params.values['hardware_id'])
         status.name = f'{scanner}: identification'
         status.hardware_id = scanner
-        status.level = DiagnosticStatus.WARN if trouble else DiagnosticStatus.OK
-        status.message = ('; '.join(trouble) + ' since the last report') if trouble else \
-            f'{now["windows_identified"]} windows identified, {now["moves_accepted"]} moves used'
+        status.level = _LEVEL_BYTES[level]
+        status.message = message
         status.values = [KeyValue(key=k, value=str(x)) for k, x in now.items()]
+        status.values.append(KeyValue(key='model',
+                                      value=model_label(self.params.values['model'])))
         array = DiagnosticArray()
         array.header.stamp = self.get_clock().now().to_msg()
         array.status = [status]

@@ -1,12 +1,20 @@
 """``watchdog``: is the identified plant drifting from its reference model?
 
 Subscribes to ``galvo/modal_parameters`` and judges each window with
-:class:`galvo_sysid.monitor.drift.DriftMonitor` (reference model and tolerances from parameters;
-default Table I): publishes a ``DriftStatus`` per window on ``galvo/drift`` and, at
-``publish_rate``, a ``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` (hardware_id =
-the scanner's name, one key/value per parameter's deviation). With no result for
-``stale_timeout`` seconds the state is STALE (also published once on ``galvo/drift``); it
-recovers with the next result.
+:class:`galvo_sysid.monitor.drift.DriftMonitor`: publishes a ``DriftStatus`` per window on
+``galvo/drift`` and, at ``publish_rate``, a ``diagnostic_msgs/DiagnosticArray`` on
+``/diagnostics`` (hardware_id = the scanner's name, one key/value per parameter's deviation).
+With no result for ``stale_timeout`` seconds the state is STALE (also published once on
+``galvo/drift``); it recovers with the next result.
+
+The reference is one model file, the read-only parameter ``model`` ('' = the packaged model
+of the paper's scanner, Table I), read at start-up (a bad file: one line on stderr, exit code
+2). Tolerances are ``tolerances.<name>`` (``tolerances.omega_2``, declared for every mode of
+the model) and the kind defaults ``tolerances.k``, ``tolerances.omega``, ``tolerances.zeta``
+for the modes without their own; not set, the built-in defaults apply (the rule:
+:mod:`galvo_sysid.monitor.drift`). A window whose data did not match the model the sysid node
+used (``status`` not OK), or with another number of modes, gives a MISMATCH verdict
+(diagnostic level ERROR), never a drift.
 
 Run: ``watchdog --ros-args --params-file config/watchdog.yaml [-r __ns:=/scanner_1]``.
 """
@@ -20,7 +28,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from galvo_sysid_msgs.msg import DriftStatus, ModalParameters
 from rclpy.node import Node
 
-from galvo_sysid.errors import ConfigurationError, GalvoSysidError
+from galvo_sysid.errors import GalvoSysidError
 from galvo_sysid.interfaces.messages import (
     diagnostic_values,
     drift_status_fields,
@@ -28,18 +36,21 @@ from galvo_sysid.interfaces.messages import (
     fill_header,
     result_from_msg,
     stamp_to_seconds,
+    status_from_msg,
 )
-from galvo_sysid.model import REFERENCE_MODEL
+from galvo_sysid.model import PlantModel, load_model, model_label
 from galvo_sysid.monitor.drift import (
+    DEFAULT_KIND_TOLERANCES,
     DEFAULT_TOLERANCES,
     ERROR,
+    KINDS,
+    MISMATCH,
     OK,
     STALE,
     WARN,
     DriftVerdict,
     monitor_from_parameters,
-    parameter_names,
-    reference_from_parameters,
+    parameter_kind,
 )
 from galvo_sysid.monitor.online import WatchdogTask
 from galvo_sysid.nodes.framework import (
@@ -58,23 +69,43 @@ from galvo_sysid.nodes.framework import (
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ['PARAMETERS', 'WatchdogNode', 'main']
+__all__ = ['PARAMETERS', 'WatchdogNode', 'main', 'tolerance_specs']
 
-_NAMES = parameter_names(REFERENCE_MODEL.n_modes)
 _LEVEL_BYTES = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN,
-                ERROR: DiagnosticStatus.ERROR, STALE: DiagnosticStatus.STALE}
+                ERROR: DiagnosticStatus.ERROR, STALE: DiagnosticStatus.STALE,
+                MISMATCH: DiagnosticStatus.ERROR}
+_DECLARED_MODES = 3
+"""Modes whose tolerances are always declared (the paper's); a model with more modes gets
+the rest declared at start-up."""
+
+
+def _tolerance_spec(name: str) -> ParamSpec:
+    """An optional tolerance parameter (not set: the rule of galvo_sysid.monitor.drift)."""
+    if name in KINDS:
+        text = (f'relative tolerance of every {name} parameter without its own tolerance '
+                f'(0.01 = 1 %; not set: the built-in defaults)')
+    else:
+        kind = parameter_kind(name)
+        default = DEFAULT_TOLERANCES.get(name, DEFAULT_KIND_TOLERANCES.get(kind))
+        fallback = '' if kind == 'k0' else f'tolerances.{kind}, else '
+        text = (f'relative tolerance of {name} (0.01 = 1 %; not set: {fallback}'
+                f'{100 * float(default or 0):g} %)')
+    return ParamSpec(f'tolerances.{name}', None, text, 0.0, 1e6, exclusive_low=True)
+
+
+def tolerance_specs(n_modes: int, *, first_mode: int = 1) -> tuple[ParamSpec, ...]:
+    """The tolerance parameters of modes ``first_mode`` .. ``n_modes`` (from mode 1: with
+    ``tolerances.k0`` and the kinds first)."""  # noqa: D205, D209
+    names = [f'{prefix}{i}' for prefix in ('k', 'omega_', 'zeta_')
+             for i in range(max(1, first_mode), n_modes + 1)]
+    head = ['k0', *KINDS] if first_mode <= 1 else []
+    return tuple(_tolerance_spec(n) for n in (*head, *names))
+
 
 PARAMETERS = (
-    ParamSpec('reference.k0', REFERENCE_MODEL.k0, 'reference rigid-body gain k0', -1e12, 1e12),
-    ParamSpec('reference.residues', list(REFERENCE_MODEL.residues),
-              'reference residues k_i (ascending frequency)', -1e12, 1e12),
-    ParamSpec('reference.natural_frequencies', list(REFERENCE_MODEL.natural_frequencies),
-              'reference natural frequencies omega_i [rad/s]', 0.0, 1e9, exclusive_low=True),
-    ParamSpec('reference.damping_ratios', list(REFERENCE_MODEL.damping_ratios),
-              'reference damping ratios zeta_i', 0.0, 10.0, exclusive_low=True),
-    *(ParamSpec(f'tolerances.{n}', DEFAULT_TOLERANCES[n],
-                f'relative tolerance of {n} (0.01 = 1 %)', 0.0, 1e6, exclusive_low=True)
-      for n in _NAMES),
+    ParamSpec('model', '', 'plant-model file of the reference ("": the packaged model of the '
+              "paper's scanner, Table I); read at start-up", read_only=True),
+    *tolerance_specs(_DECLARED_MODES),
     ParamSpec('warn_fraction', 0.5, 'a significant deviation past this fraction of its '
               'tolerance warns', 0.0, 1.0),
     ParamSpec('n_sigma', 3.0, 'deviations within this many standard deviations are noise',
@@ -96,30 +127,22 @@ PARAMETERS = (
 )
 
 
-def _validate(values: dict[str, Any]) -> str | None:
-    try:
-        model = reference_from_parameters(values)
-    except ConfigurationError as err:
-        return f'reference model: {err}'
-    if model.n_modes != REFERENCE_MODEL.n_modes:
-        return (f'the reference must have {REFERENCE_MODEL.n_modes} resonant modes like the '
-                f'identification, got {model.n_modes}')
-    try:
-        monitor_from_parameters(values)
-    except ConfigurationError as err:
-        return str(err)
-    return None
-
-
 class WatchdogNode(Node):
     """The watchdog node (see the module docs)."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('watchdog', **kwargs)
         self.log = logger(self)
-        self.params = ParameterSet(self, PARAMETERS, validate=_validate, apply=self._apply)
+        self._models: dict[str, PlantModel] = {}
+        self.params = ParameterSet(self, PARAMETERS, validate=self._validate,
+                                   apply=self._apply)
+        self.reference = self._model(self.params.values['model'])
+        if self.reference.n_modes > _DECLARED_MODES:
+            self.params.extend(tolerance_specs(self.reference.n_modes,
+                                               first_mode=_DECLARED_MODES + 1))
         v = self.params.values
-        self.task = WatchdogTask(monitor_from_parameters(v), stale_timeout=v['stale_timeout'])
+        self.task = WatchdogTask(monitor_from_parameters(v, model=self.reference),
+                                 stale_timeout=v['stale_timeout'])
         self.scanner = scanner_name(self, v['hardware_id'])
         self.drift = self.create_publisher(DriftStatus, DRIFT_TOPIC, results_qos())
         self.diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC,
@@ -129,8 +152,22 @@ class WatchdogNode(Node):
         self.create_timer(1.0 / v['publish_rate'], self._on_timer)
         self._last_level: int | None = None
         self.log.info(f'judging {self.resolve_topic_name(RESULT_TOPIC)} against the reference '
-                      f'model; verdicts on {self.resolve_topic_name(DRIFT_TOPIC)}, diagnostics '
-                      f'on {DIAGNOSTICS_TOPIC} as {self.scanner!r}')
+                      f'model {model_label(v["model"])} ({self.reference}); verdicts on '
+                      f'{self.resolve_topic_name(DRIFT_TOPIC)}, diagnostics on '
+                      f'{DIAGNOSTICS_TOPIC} as {self.scanner!r}')
+
+    def _model(self, path: str) -> PlantModel:
+        """The model file read once (the parameter is read-only)."""
+        if path not in self._models:
+            self._models[path] = load_model(path or None)
+        return self._models[path]
+
+    def _validate(self, values: dict[str, Any]) -> str | None:
+        try:
+            monitor_from_parameters(values, model=self._model(values['model']))
+        except GalvoSysidError as err:
+            return str(err)
+        return None
 
     def _apply(self, values: dict[str, Any], changed: set[str]) -> None:
         if 'hardware_id' in changed:
@@ -138,16 +175,18 @@ class WatchdogNode(Node):
         if 'stale_timeout' in changed:
             self.task.stale_timeout = float(values['stale_timeout'])
         if changed - {'hardware_id', 'stale_timeout'}:
-            self.task.monitor = monitor_from_parameters(values)
-            self.log.info('reference or tolerances changed: trend history restarted')
+            self.task.monitor = monitor_from_parameters(values, model=self.reference)
+            self.log.info('tolerances or options changed: trend history restarted')
 
     def _on_result(self, msg: ModalParameters) -> None:
         try:
             result = result_from_msg(msg)
+            status = status_from_msg(msg)
         except GalvoSysidError as err:
             self.log.warning(f'ModalParameters message set aside: {err}')
             return
-        verdict = self.task.on_result(result, window_index=int(msg.window_index))
+        verdict = self.task.on_result(result, window_index=int(msg.window_index),
+                                      status=status.status, status_message=status.message)
         if self._last_level == STALE:
             self.log.info(f'{self.scanner}: identification results arrive again')
         self._publish_verdict(verdict, stamp=stamp_to_seconds(msg.header.stamp))

@@ -102,7 +102,11 @@ def test_usage_error_exit_code(venv_bin: Path) -> None:
 
 
 def test_identify_json_contract(identified: dict) -> None:
-    assert set(identified) == {'windows', 'pooled', 'rejected'}
+    assert set(identified) == {'windows', 'pooled', 'rejected', 'model', 'model_mismatch',
+                               'mismatched_windows'}
+    assert identified['model'] == 'paper_table1 (packaged)'
+    assert identified['model_mismatch'] is None
+    assert identified['mismatched_windows'] == []
     windows = identified['windows']
     assert len(windows) == 4
     for w in windows:
@@ -323,10 +327,16 @@ def test_progress_bar_only_on_a_terminal_and_only_when_slow() -> None:
 
 
 def test_node_parameter_files(venv_bin: Path, sim_bag: Path, tmp_path: Path) -> None:
+    from galvo_sysid.model import PAPER_MODEL, ModalModel, save_model
+
     sysid = tmp_path / 'sysid.yaml'
     sysid.write_text('/**:\n  ros__parameters:\n    window_size: 50\n    method: paper-A\n')
+    reference = save_model(PAPER_MODEL.with_modal(ModalModel(
+        k0=3.0e6, residues=REFERENCE_MODEL.residues,
+        natural_frequencies=REFERENCE_MODEL.natural_frequencies,
+        damping_ratios=REFERENCE_MODEL.damping_ratios)), tmp_path / 'reference.yaml')
     watchdog = tmp_path / 'watchdog.yaml'
-    watchdog.write_text('/**:\n  ros__parameters:\n    reference: {k0: 3.0e6}\n')
+    watchdog.write_text(f'/**:\n  ros__parameters:\n    model: {reference}\n')
     proc = run(venv_bin, 'identify', sim_bag, '--json', '--sysid-params', sysid,
                '--watchdog-params', watchdog, '--method', 'refined')
     assert proc.returncode == 0, proc.stderr
@@ -355,3 +365,130 @@ def test_builtin_commands_register_no_plugin(sim_bag: Path) -> None:
     proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                           check=False, timeout=60)
     assert proc.stdout.splitlines()[-1] == '0 []', proc.stdout + proc.stderr
+
+
+
+def test_simulate_help_examples_run(tmp_path: Path, repo: Path, monkeypatch) -> None:
+    """Every example of ``simulate --help`` runs as printed (outputs moved to tmp_path)."""
+    import shlex
+
+    from galvo_sysid.cli.main import build_parser, main
+
+    monkeypatch.chdir(repo)  # the --model example names a file of the source checkout
+    parser = build_parser(plugins=False)
+    sub = next(a for a in parser._actions if hasattr(a, 'choices') and a.choices
+               and 'simulate' in a.choices)
+    text = sub.choices['simulate'].format_help().split('examples:\n', 1)[1]
+    examples = [line.split('#')[0].strip() for line in text.replace('\\\n', ' ').splitlines()]
+    examples = [e for e in examples if e]
+    assert len(examples) >= 4
+    assert any('--drift' in e for e in examples)
+    assert any('--model' in e for e in examples)
+    for example in examples:
+        words = [w.replace('/tmp/', f'{tmp_path}/') for w in shlex.split(example)]
+        assert words[0] == 'galvo-sysid'
+        assert main(words[1:]) == 0, example
+
+
+@pytest.fixture(scope='module')
+def other_scanner(tmp_path_factory: pytest.TempPathFactory) -> tuple:
+    """A bag of a scanner that is not the paper's (seed 35: 2 modes, 13.3 us, records of 451
+    samples: fast) and its model file."""
+    from galvo_sysid.field.simulate import simulate_bag
+    from galvo_sysid.model import save_model
+    from galvo_sysid.sim.family import random_scanner
+
+    scanner = random_scanner(35)
+    folder = tmp_path_factory.mktemp('other')
+    model = save_model(scanner.model, folder / 'scanner35.yaml')
+    bag = folder / 'bag'
+    simulate_bag(bag, angles=[0.3, 1.0], moves_per_angle=40, seed=7, config=scanner.config)
+    return scanner, model, bag
+
+
+def test_identify_with_the_scanners_model(venv_bin: Path, other_scanner: tuple,
+                                          tmp_path: Path) -> None:
+    scanner, model, bag = other_scanner
+    proc = run(venv_bin, 'identify', bag, '--model', model, '--window-size', '20', '--json')
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == ''
+    out = json.loads(proc.stdout)
+    assert out['model'] == str(model)
+    assert out['model_mismatch'] is None
+    assert len(out['windows']) == 4
+    assert out['rejected'] == []
+    truth = scanner.model.modal
+    pooled = out['pooled']
+    assert len(pooled['residues']) == truth.n_modes == 2
+    assert pooled['k0'] == pytest.approx(truth.k0, rel=0.005)
+    assert pooled['natural_frequencies'] == pytest.approx(truth.natural_frequencies, rel=0.002)
+    assert pooled['residues'] == pytest.approx(truth.residues, rel=0.05)
+    assert pooled['damping_ratios'] == pytest.approx(truth.damping_ratios, rel=0.1)
+    for w in out['windows']:
+        assert set(w['drift']['deviations']) == set(truth.parameters())
+        assert w['drift']['level'] == 'OK', w['drift']['message']
+    # the table: deviations from that model, not from Table I
+    table = run(venv_bin, 'identify', bag, '--model', model, '--window-size', '20')
+    assert table.returncode == 0, table.stderr
+    assert f'deviation from the reference model {model} [%]' in table.stdout
+    assert 'omega_3' not in table.stdout
+    assert 'Table I' not in table.stdout
+    # the model from the sysid parameter file; the command line wins over it
+    params = tmp_path / 'sysid.yaml'
+    params.write_text(f'/**:\n  ros__parameters:\n    model: {model}\n    window_size: 20\n')
+    proc = run(venv_bin, 'identify', bag, '--sysid-params', params, '--json')
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)['model'] == str(model)
+    proc = run(venv_bin, 'identify', bag, '--sysid-params', params, '--model', '')
+    assert proc.returncode == 1  # '' = the paper's model: another scanner
+
+
+def test_identify_with_the_wrong_model_says_so_in_one_line(venv_bin: Path,
+                                                          other_scanner: tuple) -> None:
+    _, _, bag = other_scanner
+    proc = run(venv_bin, 'identify', bag, '--window-size', '20')
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert 'Traceback' not in proc.stderr
+    assert proc.stderr.splitlines() == [
+        "the data do not match model paper_table1 (packaged): the data's sample period "
+        "1.33e-05 s differs from the model's 1e-05 s; run galvo-sysid commission"]
+    proc = run(venv_bin, 'identify', bag, '--window-size', '20', '--json')
+    assert proc.returncode == 1
+    out = json.loads(proc.stdout)
+    assert out['model_mismatch'].startswith("the data's sample period 1.33e-05 s")
+    assert out['windows'] == []
+    assert len(proc.stderr.splitlines()) == 1
+    missing = run(venv_bin, 'identify', bag, '--model', Path(bag) / 'none.yaml')
+    assert_one_line_error(missing, 'none.yaml')
+
+
+def test_simulate_with_a_model_file(venv_bin: Path, other_scanner: tuple,
+                                    tmp_path: Path) -> None:
+    scanner, model, _ = other_scanner
+    out = tmp_path / 'sim'
+    proc = run(venv_bin, 'simulate', '--out', out, '--model', model, '--angles', '0.3',
+               '--moves-per-angle', '4', '--record-length', '300', '--dwell-length', '20')
+    assert proc.returncode == 0, proc.stderr
+    assert f'scanner {model}: sample period 13.3 us, records of 300 samples + 20 dwell' \
+        in proc.stderr
+    from galvo_sysid.field.bags import BagReader
+
+    with BagReader(out) as reader:
+        halves = list(reader.move_halves())
+    assert len(halves) == 8
+    assert {h.sample_period for h in halves} == {scanner.model.sample_period}
+    assert {h.data.shape[0] for h in halves} == {300}
+    assert halves[2].stamp - halves[0].stamp == pytest.approx(320 * 13.3e-6)
+    default = run(venv_bin, 'simulate', '--out', tmp_path / 'paper', '--angles', '0.3',
+                  '--moves-per-angle', '2')
+    assert 'paper_table1 (packaged): sample period 10 us, records of 512 samples + 94' \
+        in default.stderr
+    assert_one_line_error(run(venv_bin, 'simulate', '--out', tmp_path / 'x', '--model',
+                              tmp_path / 'none.yaml'), 'none.yaml')
+
+
+def test_discrepancy_refuses_data_of_another_sample_period(venv_bin: Path,
+                                                          other_scanner: tuple) -> None:
+    _, _, bag = other_scanner
+    proc = run(venv_bin, 'discrepancy', bag)  # the paper's model: 10 us
+    assert_one_line_error(proc, 'sampled at 1.33e-05 s but the model at 1e-05 s')

@@ -179,22 +179,36 @@ def test_defaults_are_the_nodes_defaults() -> None:
 
 def test_parameter_files(tmp_path: Path, repo: Path) -> None:
     from galvo_sysid.field.offline import load_node_parameters, monitor_from_parameters
+    from galvo_sysid.model import PAPER_MODEL, REFERENCE_MODEL, ModalModel, save_model
 
     values = load_node_parameters(repo / 'config' / 'watchdog.yaml', 'watchdog')
     monitor = monitor_from_parameters(values)
     assert monitor.tolerances['omega_1'] == values['tolerances.omega_1']
-    assert monitor.reference.k0 == values['reference.k0']
+    assert monitor.reference == REFERENCE_MODEL  # model: "" = the packaged paper model
+    assert monitor.tolerances == DriftMonitor().tolerances  # the paper's, as before
+    assert load_node_parameters(repo / 'config' / 'sysid.yaml', 'sysid')['model'] == ''
+    driver = load_node_parameters(repo / 'config' / 'driver.yaml', 'galvo_driver')
+    assert (driver['model'], driver['record_length'], driver['dwell_length']) == ('', 0, -1)
+    other = save_model(PAPER_MODEL.with_modal(ModalModel(
+        k0=3.0e6, residues=REFERENCE_MODEL.residues,
+        natural_frequencies=REFERENCE_MODEL.natural_frequencies,
+        damping_ratios=REFERENCE_MODEL.damping_ratios)), tmp_path / 'other.yaml')
     custom = tmp_path / 'p.yaml'
     custom.write_text('/**:\n  ros__parameters:\n    window_size: 80\n    na: 12\n'
                       '/left/sysid:\n  ros__parameters:\n    window_size: 50\n'
                       'watchdog:\n  ros__parameters:\n    tolerances: {k0: 0.5}\n'
-                      '    reference: {k0: 3.0e6}\n')
+                      f'    model: {other}\n')
     assert load_node_parameters(custom, 'sysid') == {'window_size': 50, 'na': 12}
     watchdog = load_node_parameters(custom, 'watchdog')
     assert watchdog['tolerances.k0'] == 0.5
     monitor = monitor_from_parameters(watchdog)
     assert monitor.reference.k0 == 3.0e6
+    assert monitor.reference_name == str(other)
     assert monitor.tolerances['k0'] == 0.5
+    old = tmp_path / 'old.yaml'  # a parameter file of before: said plainly
+    old.write_text('watchdog:\n  ros__parameters:\n    reference: {k0: 3.0e6}\n')
+    with pytest.raises(ConfigurationError, match=r'reference\.k0 are no longer read'):
+        monitor_from_parameters(load_node_parameters(old, 'watchdog'))
     only_named = tmp_path / 'q.yaml'
     only_named.write_text('driver:\n  ros__parameters: {seed: 1}\n')
     with pytest.raises(ConfigurationError, match='no section'):
@@ -213,3 +227,64 @@ def test_windower_settings_reach_the_windower(bag: Path) -> None:
     strict = identify_bag(bag, windower={'samples': 500})
     assert strict.windows == ()
     assert 'expected 500' in strict.rejected[0]['reason']
+
+
+
+@pytest.fixture(scope='module')
+def other_scanner(tmp_path_factory: pytest.TempPathFactory) -> tuple:
+    """A bag of a scanner that is not the paper's (2 modes, 13.3 us) and its model file."""
+    from galvo_sysid.model import save_model
+    from galvo_sysid.sim.family import random_scanner
+
+    scanner = random_scanner(35)
+    folder = tmp_path_factory.mktemp('other')
+    model = save_model(scanner.model, folder / 'scanner35.yaml')
+    bag = folder / 'bag'
+    simulate_bag(bag, angles=[0.3, 1.0], moves_per_angle=40, seed=6, config=scanner.config)
+    return scanner, model, bag
+
+
+def test_identify_bag_honours_the_model(other_scanner: tuple) -> None:
+    scanner, path, bag = other_scanner
+    found = identify_bag(bag, window_size=20, model=scanner.model, model_path=str(path))
+    assert len(found.windows) == 4
+    assert found.model_mismatch is None
+    assert found.mismatched == ()
+    assert found.rejected == ()
+    assert found.reference == scanner.model.modal  # deviations from the model
+    assert found.pooling == 'joint'  # the joint fit with the model too
+    truth = scanner.model.parameters()
+    pooled = found.pooled.model.parameters()
+    for name in ('k0', 'k1', 'omega_1', 'omega_2'):
+        assert abs(pooled[name] / truth[name] - 1) < 0.01, name
+    assert {w.drift.level_name for w in found.windows} == {'OK'}
+    d = found.to_dict()
+    assert d['model'] == str(path)
+    assert d['model_mismatch'] is None
+    assert d['mismatched_windows'] == []
+
+
+def test_identify_bag_says_the_data_do_not_match_another_model(other_scanner: tuple,
+                                                                tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    scanner, _, bag = other_scanner
+    # the paper's model: another sample period, every move set aside with the reason
+    found = identify_bag(bag, window_size=20)
+    assert found.windows == ()
+    assert found.model_mismatch == ("the data's sample period 1.33e-05 s differs from the "
+                                    "model's 1e-05 s")
+    assert {r['reason'] for r in found.rejected} == {found.model_mismatch}
+    assert found.to_dict()['model_mismatch'] == found.model_mismatch
+    # the same sample period but other modes: the windows do not match, said with the reason
+    model = replace(scanner.model, sample_period=1e-5, bands=None)
+    same_period = tmp_path / 'bag'
+    simulate_bag(same_period, angles=[0.3], moves_per_angle=40, seed=6,
+                 config=replace(scanner.config, plant=model))
+    found = identify_bag(same_period, window_size=20)
+    assert found.mismatched, [w.drift.message for w in found.windows]
+    assert found.model_mismatch == found.mismatched[0].reason
+    assert 'window 0 does not match the model' in found.rejected[0]['reason'] or \
+        'does not match the model' in found.rejected[0]['reason']
+    d = found.to_dict()
+    assert d['mismatched_windows'][0]['reason'] == found.model_mismatch

@@ -24,17 +24,19 @@ from galvo_sysid.interfaces.messages import (
     result_from_msg,
     seconds_to_stamp,
     stamp_to_seconds,
+    status_from_msg,
+    unidentified_fields,
     verdict_from_msg,
 )
 from galvo_sysid.model import REFERENCE_MODEL
-from galvo_sysid.monitor.drift import DriftMonitor
+from galvo_sysid.monitor.drift import MISMATCH, STATUS_MISMATCH, STATUS_OK, DriftMonitor
 
 RESULT = IdentificationResult(
     target_angle=-0.9, moves=100, input_delay=1.6e-5, lag_time_constant=6e-6,
     k0=3.5e6, residues=(2.0e6, -5.4e6, -4.0e5), natural_frequencies=(7.1e4, 1.19e5, 1.67e5),
     damping_ratios=(6e-3, 7.7e-3, 4.6e-3), k0_std=1e3, residues_std=(1e4, 2e4, 3e5),
     natural_frequencies_std=(3.0, 9.0, 2e4), damping_ratios_std=(5e-5, 9e-5, 1e-2),
-    fit_percent=94.2, method='refined')
+    fit_percent=94.2, method='refined', resolved=(True, True, False))
 
 
 def test_stamps_round_trip() -> None:
@@ -89,15 +91,99 @@ def test_broken_move_samples_raise_invalid_data(broken: object) -> None:
 
 
 def test_modal_parameters_round_trip() -> None:
-    msg = fill(ModalParameters(), modal_parameters_fields(RESULT, window_index=9))
+    msg = fill(ModalParameters(), modal_parameters_fields(RESULT, window_index=9,
+                                                          model='scanners/s7.yaml'))
     assert msg.window_index == 9
     assert msg.moves == 100
     assert list(msg.natural_frequencies) == [7.1e4, 1.19e5, 1.67e5]
+    assert list(msg.resolved) == [True, True, False]
+    assert (msg.status, msg.status_message, msg.model) == (
+        ModalParameters.STATUS_OK, '', 'scanners/s7.yaml')
     back = result_from_msg(msg, lag_time_constant=6e-6)
     assert back == RESULT
+    status = status_from_msg(msg)
+    assert status.ok
+    assert status.model == 'scanners/s7.yaml'
+    # a result that does not say which modes are resolved: every mode is
+    plain = fill(ModalParameters(), modal_parameters_fields(
+        IdentificationResult(**{**RESULT.__dict__, 'resolved': ()}), window_index=1))
+    assert list(plain.resolved) == [True] * 3
+    assert plain.model == ''
     msg.damping_ratios_std = [1.0]
     with pytest.raises(InvalidDataError, match='differ in length'):
         result_from_msg(msg)
+
+
+def test_status_constants_match_the_messages() -> None:
+    from galvo_sysid.monitor.drift import LEVEL_NAMES, STATUS_FAILED
+
+    assert (ModalParameters.STATUS_OK, ModalParameters.STATUS_MISMATCH,
+            ModalParameters.STATUS_FAILED) == (STATUS_OK, STATUS_MISMATCH, STATUS_FAILED)
+    assert DriftStatus.MISMATCH == MISMATCH
+    assert [getattr(DriftStatus, n) for n in LEVEL_NAMES] == list(range(len(LEVEL_NAMES)))
+
+
+def mismatch_fields() -> dict:
+    return unidentified_fields(
+        window_index=4, target_angle=-0.3, moves=20, n_modes=2, status=STATUS_MISMATCH,
+        status_message='the data do not match model s.yaml: no physical mode 2 in the band; '
+                       'run galvo-sysid commission', model='s.yaml')
+
+
+def test_a_window_that_did_not_match_the_model_round_trips_and_is_a_mismatch_verdict() -> None:
+    msg = fill(ModalParameters(), mismatch_fields())
+    assert msg.status == ModalParameters.STATUS_MISMATCH
+    assert len(msg.residues) == 2
+    assert all(math.isnan(x) for x in msg.natural_frequencies)
+    assert list(msg.resolved) == [False, False]
+    status = status_from_msg(msg)
+    assert (status.status, status.model) == (STATUS_MISMATCH, 's.yaml')
+    assert 'no physical mode 2 in the band' in status.message
+    result = result_from_msg(msg)
+    assert math.isnan(result.k0)
+    assert result.n_modes == 2
+    verdict = DriftMonitor().assess(result, window_index=4, status=status.status,
+                                    status_message=status.message)
+    assert verdict.level == MISMATCH
+    back = verdict_from_msg(fill(DriftStatus(), drift_status_fields(verdict)))
+    assert back.level == DriftStatus.MISMATCH
+    assert back.message == verdict.message
+    assert dict(diagnostic_values(verdict))['verdict'] == 'MISMATCH'
+    with pytest.raises(InvalidDataError, match='status'):
+        unidentified_fields(window_index=0, target_angle=0.3, moves=1, n_modes=1,
+                            status=STATUS_OK, status_message='')
+    msg.status = 7
+    with pytest.raises(InvalidDataError, match='unknown status'):
+        status_from_msg(msg)
+
+
+def test_modal_parameters_through_rosbags_messages() -> None:
+    """The same conversions on rosbags message objects (what bags hold), serialized and back;
+    a message of before the status fields reads as an identified window."""
+    from galvo_sysid.field.bags import MODAL_PARAMETERS, galvo_typestore
+
+    store = galvo_typestore([MODAL_PARAMETERS])
+    cls = store.types[MODAL_PARAMETERS]
+    header = store.types['std_msgs/msg/Header'](
+        stamp=store.types['builtin_interfaces/msg/Time'](sec=1, nanosec=0), frame_id='')
+    for fields in (modal_parameters_fields(RESULT, window_index=9, model='m.yaml'),
+                   mismatch_fields()):
+        fields = {**fields, 'resolved': np.array(fields['resolved'], dtype=bool)}
+        msg = cls(header=header, **fields)
+        back = store.deserialize_cdr(store.serialize_cdr(msg, MODAL_PARAMETERS),
+                                     MODAL_PARAMETERS)
+        status = status_from_msg(back)
+        assert status.status == fields['status']
+        assert status.model == fields['model']
+        result = result_from_msg(back, lag_time_constant=6e-6)
+        assert result.resolved == tuple(bool(x) for x in fields['resolved'])
+        if status.ok:
+            assert result == RESULT
+    old = SimpleNamespace(**{k: v for k, v in modal_parameters_fields(
+        RESULT, window_index=1).items() if k not in ('resolved', 'status', 'status_message',
+                                                     'model')})
+    assert status_from_msg(old).ok
+    assert result_from_msg(old).resolved == ()
 
 
 def test_drift_status_round_trip_and_diagnostics() -> None:
@@ -106,7 +192,8 @@ def test_drift_status_round_trip_and_diagnostics() -> None:
     back = verdict_from_msg(msg)
     assert back.level == verdict.level
     assert back.names == verdict.names
-    assert back.relative_deviation == pytest.approx(verdict.relative_deviation)
+    assert back.relative_deviation == pytest.approx(verdict.relative_deviation, nan_ok=True)
+    assert math.isnan(back.relative_deviation[3])  # k3: mode 3 unresolved, not judged
     assert back.message == verdict.message
     values = dict(diagnostic_values(verdict, extra={'age': '1.0'}))
     assert values['verdict'] == verdict.level_name

@@ -9,14 +9,18 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.model import REFERENCE_MODEL
+from galvo_sysid.errors import ConfigurationError, InvalidDataError
+from galvo_sysid.model import REFERENCE_MODEL, ModalModel, save_model
 from galvo_sysid.monitor.drift import (
+    DEFAULT_KIND_TOLERANCES,
     DEFAULT_NOISE_FLOOR,
     DEFAULT_TOLERANCES,
     ERROR,
+    MISMATCH,
     OK,
     STALE,
+    STATUS_FAILED,
+    STATUS_MISMATCH,
     WARN,
     DriftMonitor,
     parameter_names,
@@ -37,6 +41,7 @@ class FakeResult:
     natural_frequencies_std: tuple[float, ...]
     damping_ratios_std: tuple[float, ...]
     fit_percent: float = 99.9
+    resolved: tuple[bool, ...] = ()
 
 
 def result(rel: dict[str, float] | None = None, *, rel_std: float | dict[str, float] = 1e-4,
@@ -177,14 +182,17 @@ def test_poor_fit_warns_and_stays_out_of_the_trend() -> None:
     assert all(math.isnan(x) for x in v.trend_per_window)
 
 
-def test_wrong_mode_count_or_nan_is_an_error_verdict() -> None:
+def test_wrong_mode_count_is_a_mismatch_and_nan_an_error_verdict() -> None:
     r = result()
     two = FakeResult(r.target_angle, r.k0, r.residues[:2], r.natural_frequencies[:2],
                      r.damping_ratios[:2], r.k0_std, r.residues_std[:2],
                      r.natural_frequencies_std[:2], r.damping_ratios_std[:2])
     v = DriftMonitor().assess(two, window_index=1)
-    assert v.level == ERROR
-    assert '2 resonant modes' in v.message
+    assert v.level == MISMATCH
+    assert v.level_name == 'MISMATCH'
+    assert 'do not match the reference model' in v.message
+    assert '2 resonant mode(s), the reference 3' in v.message
+    assert v.flagged == ()  # no parameter is said to drift
     bad = FakeResult(r.target_angle, math.nan, *[getattr(r, f) for f in (
         'residues', 'natural_frequencies', 'damping_ratios', 'k0_std', 'residues_std',
         'natural_frequencies_std', 'damping_ratios_std')])
@@ -229,9 +237,10 @@ def test_a_step_and_its_recovery_are_no_trend_and_a_later_drift_still_is() -> No
     assert abs(deviations[first_trend]) < DEFAULT_TOLERANCES['omega_1']
 
 
-def test_monitor_from_parameters_is_the_watchdog_nodes() -> None:
+def test_monitor_from_parameters_is_the_watchdog_nodes(tmp_path) -> None:
     import inspect
 
+    from galvo_sysid.model import PAPER_MODEL
     from galvo_sysid.monitor.drift import MONITOR_PARAMETERS, monitor_from_parameters
     from galvo_sysid.nodes import watchdog_node
 
@@ -239,21 +248,140 @@ def test_monitor_from_parameters_is_the_watchdog_nodes() -> None:
     # every option is a watchdog parameter and a DriftMonitor argument of the same name
     assert set(MONITOR_PARAMETERS) <= set(declared)
     assert set(MONITOR_PARAMETERS) <= set(inspect.signature(DriftMonitor).parameters)
+    assert not any(n.startswith('reference.') for n in declared)  # one source: the model file
     nodes = monitor_from_parameters(declared)
     plain = DriftMonitor()
     for name in ('reference', 'tolerances', 'noise_floor', *MONITOR_PARAMETERS):
         assert getattr(nodes, name) == getattr(plain, name), name
     # values reach the monitor (step_fraction too: it was once left out offline)
+    other = PAPER_MODEL.with_modal(ModalModel(
+        k0=3.0e6, residues=REFERENCE_MODEL.residues,
+        natural_frequencies=REFERENCE_MODEL.natural_frequencies,
+        damping_ratios=REFERENCE_MODEL.damping_ratios))
+    path = save_model(other, tmp_path / 'other.yaml')
     custom = monitor_from_parameters({**declared, 'step_fraction': 0.8, 'n_sigma': 2.0,
-                                      'tolerances.omega_1': 0.02, 'reference.k0': 3.0e6,
+                                      'tolerances.omega_1': 0.02, 'model': str(path),
                                       'hardware_id': 'ignored'})
     assert (custom.step_fraction, custom.n_sigma) == (0.8, 2.0)
     assert custom.tolerances['omega_1'] == 0.02
     assert custom.reference.k0 == 3.0e6
+    assert custom.reference_name == str(path)
     assert monitor_from_parameters({}).reference == REFERENCE_MODEL  # missing: defaults
-    with pytest.raises(ConfigurationError, match='bad watchdog parameter'):
-        monitor_from_parameters({'reference.k0': 'heavy'})
+    assert monitor_from_parameters({'model': ''}).reference == REFERENCE_MODEL
+    with pytest.raises(ConfigurationError, match='no longer read'):
+        monitor_from_parameters({'reference.k0': 3.0e6})
+    with pytest.raises(InvalidDataError):
+        monitor_from_parameters({'model': str(tmp_path / 'missing.yaml')})
+    with pytest.raises(ConfigurationError, match='not a number'):
+        monitor_from_parameters({'tolerances.k0': 'tight'})
     with pytest.raises(ConfigurationError, match='tolerance'):
         monitor_from_parameters({'tolerances.k0': -1.0})
     with pytest.raises(ConfigurationError, match='unknown'):
-        monitor_from_parameters({'tolerances.k9': 0.1})
+        monitor_from_parameters({'tolerances.kappa_1': 0.1})
+    # a mode the reference lacks: ignored (the node does not declare it either)
+    assert monitor_from_parameters({'tolerances.k9': 0.1}).tolerances == plain.tolerances
+
+
+def modes_model(n: int) -> ModalModel:
+    return ModalModel(k0=2e6, residues=tuple(1e5 * (i + 1) for i in range(n)),
+                      natural_frequencies=tuple(2e4 * (i + 1) for i in range(n)),
+                      damping_ratios=(0.01,) * n)
+
+
+def test_tolerance_rule_with_a_five_mode_model() -> None:
+    """Own entry, else the kind's, else the built-in per-name default (modes 1-3), else the
+    built-in kind default: any number of modes works."""
+    from galvo_sysid.monitor.drift import monitor_from_parameters
+
+    ref = modes_model(5)
+    plain = DriftMonitor(reference=ref)
+    assert plain.names == parameter_names(5)
+    for n in ('k0', 'k1', 'omega_2', 'zeta_3', 'k3'):
+        assert plain.tolerances[n] == DEFAULT_TOLERANCES[n]  # the paper's, as before
+    for i in (4, 5):
+        assert plain.tolerances[f'k{i}'] == DEFAULT_KIND_TOLERANCES['k']
+        assert plain.tolerances[f'omega_{i}'] == DEFAULT_KIND_TOLERANCES['omega']
+        assert plain.tolerances[f'zeta_{i}'] == DEFAULT_KIND_TOLERANCES['zeta']
+    mon = DriftMonitor(reference=ref, tolerances={'omega': 0.004, 'omega_5': 0.03, 'k': 0.2,
+                                                  'k0': 0.05})
+    assert [mon.tolerances[f'omega_{i}'] for i in range(1, 6)] == [0.004] * 4 + [0.03]
+    assert [mon.tolerances[f'k{i}'] for i in range(1, 6)] == [0.2] * 5
+    assert mon.tolerances['k0'] == 0.05
+    assert mon.tolerances['zeta_5'] == DEFAULT_KIND_TOLERANCES['zeta']
+    with pytest.raises(ConfigurationError, match='unknown'):
+        DriftMonitor(reference=ref, tolerances={'omega_6': 0.1})
+    # the same rule through the parameters (None: not set, as a node parameter left unset)
+    from galvo_sysid.model import PAPER_MODEL
+
+    model = PAPER_MODEL.with_modal(ref)
+    values = {'tolerances.omega': 0.004, 'tolerances.omega_5': 0.03, 'tolerances.zeta': None}
+    via = monitor_from_parameters(values, model=model)
+    assert via.tolerances == {**plain.tolerances, **{f'omega_{i}': 0.004 for i in range(1, 5)},
+                              'omega_5': 0.03}
+    # judged with them: omega_5 off by 1 % is well within its own 3 %, omega_4 by 1 % is
+    # beyond the kind's 0.4 %
+    r = FakeResult(0.3, ref.k0, ref.residues,
+                   (*ref.natural_frequencies[:3], ref.natural_frequencies[3] * 1.01,
+                    ref.natural_frequencies[4] * 1.01), ref.damping_ratios, 1.0, (1.0,) * 5,
+                   (1.0,) * 5, (1e-6,) * 5)
+    v = via.assess(r, window_index=0)
+    assert v.level == ERROR
+    assert v.flagged == ('omega_4',)
+
+
+def test_unresolved_modes_are_not_judged() -> None:
+    r = result({'k3': 3.0, 'omega_3': -0.5, 'zeta_3': 500.0})  # mode 3: noise, far off
+    judged = DriftMonitor().assess(r, window_index=0)
+    assert judged.level == ERROR
+    unresolved = FakeResult(*[getattr(r, f) for f in (
+        'target_angle', 'k0', 'residues', 'natural_frequencies', 'damping_ratios', 'k0_std',
+        'residues_std', 'natural_frequencies_std', 'damping_ratios_std', 'fit_percent')],
+        resolved=(True, True, False))
+    mon = DriftMonitor()
+    v = mon.assess(unresolved, window_index=0)
+    assert v.level == OK, v.message
+    assert 'mode 3 unresolved' in v.message
+    assert 'k3' not in v.message
+    assert v.flagged == ()
+    for n in ('k3', 'omega_3', 'zeta_3'):
+        assert math.isnan(v.relative_deviation[NAMES.index(n)])
+    assert v.relative_deviation[NAMES.index('omega_1')] == pytest.approx(0.0, abs=1e-12)
+    # a resolved mode is still judged next to an unresolved one
+    r2 = result({'omega_1': -0.02, 'omega_3': -0.5})
+    off = FakeResult(*[getattr(r2, f) for f in (
+        'target_angle', 'k0', 'residues', 'natural_frequencies', 'damping_ratios', 'k0_std',
+        'residues_std', 'natural_frequencies_std', 'damping_ratios_std', 'fit_percent')],
+        resolved=(True, True, False))
+    v = mon.assess(off, window_index=1)
+    assert v.level == ERROR
+    assert v.flagged == ('omega_1',)
+    assert v.message.endswith('mode 3 unresolved (not judged)')
+    json.dumps(v.to_dict(), allow_nan=False)
+
+
+def test_a_result_that_did_not_match_the_model_is_a_mismatch_never_drift() -> None:
+    mon = DriftMonitor(reference_name='scanner7.yaml')
+    nan = FakeResult(0.3, math.nan, (math.nan,) * 3, (math.nan,) * 3, (math.nan,) * 3,
+                     math.nan, (math.nan,) * 3, (math.nan,) * 3, (math.nan,) * 3, math.nan)
+    why = ('the data do not match model scanner7.yaml: no physical mode 2 in the band '
+           '5e4..9e4 rad/s; run galvo-sysid commission')
+    v = mon.assess(nan, window_index=3, status=STATUS_MISMATCH, status_message=why)
+    assert v.level == MISMATCH
+    assert v.message.startswith('MISMATCH: the data do not match the reference model '
+                                'scanner7.yaml')
+    assert 'no physical mode 2 in the band' in v.message
+    assert 'drift' in v.message
+    assert v.flagged == ()
+    assert all(math.isnan(d) for d in v.relative_deviation)
+    # even with finite parameters: the status decides, and the trend history stays clean
+    ok = result({'omega_1': -0.05})
+    v = mon.assess(ok, window_index=4, status=STATUS_MISMATCH, status_message='another scanner')
+    assert v.level == MISMATCH
+    assert 'omega_1' not in v.message
+    assert mon.assess(result(), window_index=5).level == OK
+    failed = mon.assess(nan, window_index=6, status=STATUS_FAILED,
+                        status_message='singular Jacobian')
+    assert failed.level == MISMATCH
+    assert 'identification failed: singular Jacobian' in failed.message
+    back = json.loads(json.dumps(v.to_dict(), allow_nan=False))
+    assert back['level'] == 'MISMATCH'

@@ -9,10 +9,18 @@ import time
 import numpy as np
 import pytest
 
-from galvo_sysid.errors import IdentificationError
+from galvo_sysid.errors import IdentificationError, ModelMismatchError
 from galvo_sysid.ident.identify import IdentificationResult
 from galvo_sysid.model import REFERENCE_MODEL, relative_errors
-from galvo_sysid.monitor.drift import ERROR, OK, STALE, DriftMonitor
+from galvo_sysid.monitor.drift import (
+    ERROR,
+    MISMATCH,
+    OK,
+    STALE,
+    STATUS_MISMATCH,
+    WARN,
+    DriftMonitor,
+)
 from galvo_sysid.monitor.online import (
     FitOutcome,
     RateLimitedLog,
@@ -216,3 +224,101 @@ def test_watchdog_task_goes_stale_and_recovers() -> None:
     assert task.windows_judged == 2
     with pytest.raises(Exception, match='stale_timeout'):
         WatchdogTask(DriftMonitor(), stale_timeout=0.0)
+
+
+def test_windows_of_another_scanner_are_counted_as_mismatches_and_said_plainly() -> None:
+    from galvo_sysid.sim.family import random_scanner
+
+    scanner = random_scanner(35)  # 2 modes, 13.3 us: not the paper's scanner
+    sim = GalvoSimulator(config=scanner.config, seed=2)
+    warnings: list[str] = []
+    done = Collector()
+    done.expected = 2
+
+    def fit(w: Window) -> IdentificationResult:
+        if w.target_angle > 0:
+            raise ModelMismatchError('no physical mode 2 in the band 5e4..9e4 rad/s')
+        return fake_result(w.target_angle, w.moves)
+
+    task = SysidTask(fit, done, warn=warnings.append, model_path='scanners/s35.yaml',
+                     windower={'window_size': 5, 'sample_period': scanner.model.sample_period})
+    assert task.health({}) == (OK, '0 windows identified, 0 moves used')
+    for h in halves_of(sim, [0.3], 10):
+        task.add(h)
+    assert done.event.wait(10)
+    task.close()
+    plus = next(o for o in done.items if o.window.target_angle > 0)
+    assert plus.mismatch
+    assert plus.result is None
+    assert plus.error == 'no physical mode 2 in the band 5e4..9e4 rad/s'
+    stats = task.stats()
+    assert (stats['windows_identified'], stats['windows_mismatched'],
+            stats['windows_failed']) == (1, 1, 0)
+    text = ('the data do not match model scanners/s35.yaml: no physical mode 2 in the band '
+            '5e4..9e4 rad/s; run galvo-sysid commission')
+    assert any(w.endswith(text) for w in warnings), warnings
+    assert task.health({}) == (ERROR, f'1 window(s) not identified since the last report: '
+                                      f'{text}')
+    # nothing new since then, and the latest window (-0.3 deg, the last to complete) was
+    # identified: OK
+    assert task.health(task.stats()) == (OK, '1 windows identified, 10 moves used')
+    # the latest window did not match: ERROR until a window is identified again
+    task._done(FitOutcome(window(7), None, 'a residual 40 times the noise', 0.0, 0.0,
+                          mismatch=True))
+    since = task.stats()
+    assert task.health(since)[1].startswith('the latest window was not identified: the data '
+                                            'do not match model scanners/s35.yaml: a residual')
+    task._done(FitOutcome(window(8), fake_result(), None, 0.0, 0.0))
+    assert task.health(since)[0] == OK
+
+
+def test_moves_of_another_sample_period_make_identification_health_an_error() -> None:
+    from galvo_sysid.sim.family import random_scanner
+
+    scanner = random_scanner(35)
+    task = SysidTask(lambda w: fake_result(), lambda o: None, warn=lambda line: None,
+                     windower={'window_size': 5, 'sample_period': 1e-5}, model_path='')
+    before = task.stats()
+    for h in halves_of(GalvoSimulator(config=scanner.config, seed=2), [0.3], 4):
+        task.add(h)
+    task.close()
+    level, message = task.health(before)
+    assert level == ERROR
+    assert message == ("moves set aside since the last report: the data do not match model "
+                       "paper_table1 (packaged): the data's sample period 1.33e-05 s differs "
+                       "from the model's 1e-05 s; run galvo-sysid commission")
+    # failed fits and set-aside moves of the right period only warn
+    warn_task = SysidTask(lambda w: fake_result(), lambda o: None, warn=lambda line: None)
+    warn_task.fitter.failed = 1
+    assert warn_task.health({})[0] == WARN
+    warn_task.close()
+
+
+def test_fit_window_uses_the_model() -> None:
+    from galvo_sysid.monitor.online import fit_window
+    from galvo_sysid.sim.family import random_scanner
+
+    scanner = random_scanner(35)
+    sim = GalvoSimulator(config=scanner.config, seed=4)
+    moves = [m for m in sim.moves(angles=[0.3], moves_per_angle=40) if m.target_angle > 0]
+    w = Window(index=0, target_angle=0.3, sample_period=scanner.model.sample_period,
+               current=np.array([m.current for m in moves]),
+               encoder=np.array([m.encoder for m in moves]), move_ids=tuple(range(20)),
+               first_stamp=0.0, last_stamp=1.0)
+    r = fit_window(w, model=scanner.model)
+    assert r.n_modes == 2
+    truth = scanner.model.parameters()
+    got = r.model.parameters()
+    for name in ('k0', 'omega_1', 'omega_2'):
+        assert abs(got[name] / truth[name] - 1) < 0.01, name
+    with pytest.raises(ModelMismatchError, match='sample period'):
+        fit_window(w)  # the paper's model: another scanner
+
+
+def test_watchdog_task_passes_the_status_on() -> None:
+    task = WatchdogTask(DriftMonitor())
+    v = task.on_result(fake_result(), window_index=0, status=STATUS_MISMATCH,
+                       status_message='the data do not match model x.yaml: residual')
+    assert v.level == MISMATCH
+    assert 'x.yaml: residual' in v.message
+    assert task.poll()[0].level == MISMATCH

@@ -340,3 +340,31 @@ def test_windower_parameters_are_the_sysid_nodes() -> None:
     defaults = MoveWindower()
     for name in WINDOWER_PARAMETERS:
         assert getattr(defaults, name) == declared[name], name
+
+
+def test_moves_of_another_sample_period_than_the_models_are_set_aside_once_each() -> None:
+    w = MoveWindower(window_size=3, sample_period=DT)
+    items: list[MoveHalf] = []
+    for i in range(3):
+        items += halves(i)
+    for i in range(3, 6):  # another scanner: 13.3 us
+        c, e = halves(i, period=13.3e-6)
+        items += [e, c] if i % 2 else [c, e]
+    items += halves(6, period=DT * (1 + 1e-9))  # the same period up to rounding: used
+    windows = feed(w, items)
+    assert [x.move_ids for x in windows] == [(0, 1, 2)]
+    rejections = w.pop_rejections()
+    assert [r.move_id for r in rejections] == [3, 4, 5]  # one per move, partner silent
+    reason = rejections[0].reason
+    assert reason == "the data's sample period 1.33e-05 s differs from the model's 1e-05 s"
+    assert {r.reason for r in rejections} == {reason}
+    assert w.period_mismatch == reason
+    assert w.moves_rejected == 3
+    assert summarize_rejections(rejections) == [
+        f'3 moves set aside (ids 3, 4, 5; 0.3 deg): {reason}']
+    assert w.fill_levels() == {0.3: 1}  # move 6
+    # without an expected period any period is taken (as before)
+    free = MoveWindower(window_size=3)
+    assert len(feed(free, [h for i in range(3) for h in halves(i, period=13.3e-6)])) == 1
+    with pytest.raises(ConfigurationError, match='sample_period'):
+        MoveWindower(sample_period=-1e-5)

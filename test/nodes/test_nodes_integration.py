@@ -10,12 +10,18 @@
   zero angle, bad sample period, duplicate, missing partner); each is said once in the log and
   the window still completes from the good moves. Invalid parameter changes are rejected with
   a reason and the old values stay.
+- test_a_scanner_of_its_own_model_file: one model file of a scanner that is not the paper's
+  (2 modes, 13.3 us) given to all three nodes: driver -> sysid -> watchdog judge it OK, and the
+  published parameters are that scanner's. Beside them, a sysid + watchdog pair given a model
+  whose modes are elsewhere says so: results with status MISMATCH and the reason, MISMATCH
+  verdicts, both diagnostics ERROR.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import pytest
@@ -26,7 +32,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from ros_graph import Graph
 
 from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields
-from galvo_sysid.model import REFERENCE_MODEL
+from galvo_sysid.model import REFERENCE_MODEL, ModalModel
 from galvo_sysid.sim.simulator import GalvoSimulator
 
 if TYPE_CHECKING:
@@ -234,3 +240,93 @@ def test_bad_moves_are_set_aside_and_the_window_completes(graph: Graph) -> None:
                    '(id 0; 0.3 deg): duplicate move_id (current seen twice)'):
         assert log.count(reason) == 1, (reason, log)
     assert 'Traceback' not in log
+
+
+def test_a_scanner_of_its_own_model_file(graph: Graph, tmp_path: Any) -> None:
+    from galvo_sysid.model import save_model
+    from galvo_sysid.sim.family import random_scanner
+
+    scanner = random_scanner(35)  # 2 modes, T = 13.3 us, records of 451 samples
+    truth = scanner.model.modal
+    model = save_model(scanner.model, tmp_path / 'scanner35.yaml')
+    ns = '/scanner_m'
+    results: list[ModalParameters] = []
+    verdicts: list[DriftStatus] = []
+    graph.node.create_subscription(ModalParameters, f'{ns}/galvo/modal_parameters',
+                                   results.append, RESULTS_QOS)
+    graph.node.create_subscription(DriftStatus, f'{ns}/galvo/drift', verdicts.append,
+                                   RESULTS_QOS)
+    remap = f'__ns:={ns}'
+    given = f'model:={model}'
+    graph.start('sysid', 'sysid', '-r', remap, '-p', given, '-p', 'window_size:=20',
+                '-p', 'stats_period:=0.0')
+    graph.start('watchdog', 'watchdog', '-r', remap, '-p', given)
+    # a model of another scanner with the same sample period: its modes 1.5 times higher
+    mm = scanner.model.modal
+    shifted = tuple(1.5 * w for w in mm.natural_frequencies)
+    wrong = save_model(replace(scanner.model, modal=ModalModel(
+        k0=mm.k0, residues=mm.residues, natural_frequencies=shifted,
+        damping_ratios=mm.damping_ratios), bands=tuple((0.9 * w, 1.1 * w) for w in shifted)),
+        tmp_path / 'wrong.yaml')
+    wrong_results: list[ModalParameters] = []
+    wrong_verdicts: list[DriftStatus] = []
+    diags: dict[str, tuple[int, str]] = {}
+
+    def on_diag(msg: DiagnosticArray) -> None:
+        for st in msg.status:
+            if st.hardware_id == 'wrong':
+                diags[st.name] = (int.from_bytes(st.level, 'little'), st.message)
+
+    graph.node.create_subscription(ModalParameters, f'{ns}/galvo/wrong_parameters',
+                                   wrong_results.append, RESULTS_QOS)
+    graph.node.create_subscription(DriftStatus, f'{ns}/galvo/wrong_drift',
+                                   wrong_verdicts.append, RESULTS_QOS)
+    graph.node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 50)
+    to_wrong = 'galvo/modal_parameters:=galvo/wrong_parameters'
+    graph.start('sysid', 'sysid_wrong', '-r', remap, '-r', '__node:=sysid_wrong', '-r', to_wrong,
+                '-p', f'model:={wrong}', '-p', 'window_size:=20', '-p', 'stats_period:=0.0',
+                '-p', 'fit_processes:=0', '-p', 'hardware_id:=wrong')
+    graph.start('watchdog', 'watchdog_wrong', '-r', remap, '-r', '__node:=watchdog_wrong',
+                '-r', to_wrong, '-r', 'galvo/drift:=galvo/wrong_drift', '-p', f'model:={wrong}',
+                '-p', 'hardware_id:=wrong', '-p', 'publish_rate:=4.0')
+    graph.start('galvo_driver', 'driver', '-r', remap, '-p', given,
+                '-p', 'angles:=[0.3, 1.0]', '-p', 'rate_factor:=4.0', '-p', 'seed:=3',
+                '-p', 'wait_for_subscribers:=2')
+
+    def ok() -> list[DriftStatus]:
+        return [v for v in verdicts if v.level == DriftStatus.OK]
+
+    graph.spin_until(lambda: len(ok()) >= 2 and len(results) >= 2, 40,
+                     'OK verdicts on the scanner of the model file')
+    by_index = {m.window_index: m for m in results}
+    for v in ok():
+        msg = by_index[v.window_index]
+        assert msg.status == ModalParameters.STATUS_OK
+        assert msg.model == str(model)
+        assert msg.moves == 20
+        assert list(msg.resolved) == [True, True]
+        assert abs(rel(msg.k0, truth.k0)) < 0.01
+        for i in (0, 1):
+            assert abs(rel(msg.natural_frequencies[i], truth.natural_frequencies[i])) < 0.005
+            assert abs(rel(msg.residues[i], truth.residues[i])) < 0.08
+        assert list(v.names) == ['k0', 'k1', 'k2', 'omega_1', 'omega_2', 'zeta_1', 'zeta_2']
+    assert not [v.message for v in verdicts if v.level == DriftStatus.MISMATCH]
+
+    # the pair with the other scanner's model: not identified, said so, never drift
+    graph.spin_until(lambda: bool(wrong_results) and any(
+        v.level == DriftStatus.MISMATCH for v in wrong_verdicts), 20, 'MISMATCH verdicts')
+    first = wrong_results[0]
+    assert first.status == ModalParameters.STATUS_MISMATCH
+    assert len(first.residues) == 2
+    assert math.isnan(first.k0)
+    assert first.model == str(wrong)
+    assert first.status_message.startswith(f'the data do not match model {wrong}: ')
+    assert first.status_message.endswith('; run galvo-sysid commission')
+    judged = [v for v in wrong_verdicts if v.level != DriftStatus.STALE]
+    assert {v.level for v in judged} == {DriftStatus.MISMATCH}
+    assert all(f'do not match the reference model {wrong}' in v.message for v in judged)
+    graph.spin_until(lambda: diags.get('wrong: identification', (0, ''))[0] == 2
+                     and diags.get('wrong: plant drift', (0, ''))[0] == 2, 10,
+                     'both diagnostics ERROR')
+    assert f'the data do not match model {wrong}' in diags['wrong: identification'][1]
+    assert 'Traceback' not in graph.logs(100_000)

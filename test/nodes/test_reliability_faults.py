@@ -361,9 +361,8 @@ SYSID_BAD = [('window_size', -5), ('window_size', 1), ('na', 0), ('na', 61), ('n
              ('pair_timeout', 0.0), ('pair_timeout', -1.0), ('max_pending', 0),
              ('time_jump', math.nan), ('method', 'magic')]
 WATCHDOG_BAD = [('tolerances.omega_1', 0.0), ('tolerances.k0', -0.01),
-                ('stale_timeout', 0.0), ('n_sigma', -1.0),
-                ('reference.natural_frequencies', [7.1e4, -1.0, 1.6e5]),
-                ('reference.damping_ratios', [0.01, 0.01])]
+                ('stale_timeout', 0.0), ('n_sigma', -1.0), ('tolerances.omega', -1.0),
+                ('tolerances.zeta_2', 'loose'), ('model', '/tmp/other_scanner.yaml')]
 DRIVER_BAD = [('rate_factor', -1.0), ('moves_per_angle', 3), ('angles', [0.3, 45.0]),
               ('step.factor', 0.0), ('effects', '{not json')]
 
