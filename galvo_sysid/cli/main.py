@@ -34,7 +34,7 @@ __all__ = ['COMMANDS', 'PLUGINS', 'build_parser', 'main', 'parse_angle']
 
 PROG = 'galvo-sysid'
 
-PLUGINS = ('galvo_sysid.cli.discrepancy',)
+PLUGINS = ('galvo_sysid.cli.commission', 'galvo_sysid.cli.discrepancy')
 """Modules that add subcommands if present: each defines ``register(subparsers)``, which adds
 its parser(s) and sets ``func`` (``args -> exit code``) as the parser default. ``register``
 runs for every command except the built-in ones of :data:`COMMANDS` (so also for ``--help``
@@ -67,6 +67,10 @@ a first session (no ROS graph needed):
   galvo-sysid identify /tmp/run1
   galvo-sysid identify /tmp/run1 --json > run1.json
   galvo-sysid identify bags/drifting --plot drift.png
+
+your own scanner (commission once, then monitor):
+  galvo-sysid commission healthy.mcap --out scanner.yaml --plot scanner_bode.png
+  galvo-sysid identify later.mcap --model scanner.yaml
 
 on a running system (galvo_driver, sysid, watchdog nodes):
   galvo-sysid record --out /tmp/field1 --duration 30

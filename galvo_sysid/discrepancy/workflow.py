@@ -292,12 +292,19 @@ unrecorded commands just before the record (the command in flight and the amplif
 current), which the dwell's held current only approximates."""
 
 
+def _analysed(n: int) -> int:
+    """Second differences analysed of records of n samples: an even number, L."""
+    return (n - 2 - _SKIP) // 2 * 2
+
+
 def _second_difference_spectrum(x: NDArray[np.float64]) -> NDArray[np.complex128]:
     """Spectrum (bins 1 .. L/2 - 1) of the second difference of records (..., N).
 
-    The first :data:`_SKIP` second differences are left out (L = N - 2 - _SKIP).
+    The first :data:`_SKIP` second differences are left out, one more if that leaves an odd
+    number (L = :func:`_analysed` (N)).
     """
-    d2 = np.diff(x, 2, axis=-1)[..., _SKIP:]
+    n = x.shape[-1]
+    d2 = np.diff(x, 2, axis=-1)[..., n - 2 - _analysed(n):]
     spec = np.fft.rfft(d2, axis=-1)
     return np.asarray(spec[..., 1:-1], dtype=np.complex128)
 
@@ -434,9 +441,7 @@ class Comparison:
         self._sims: dict[Physics, PlantSimulator] = {}
         self._pulses: dict[tuple[Any, ...], tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
         n = moves.samples
-        length = n - 2 - _SKIP                    # second differences analysed
-        if length % 2:
-            raise InvalidDataError(f'records need an even number of samples, got {n}')
+        length = _analysed(n)                     # second differences analysed
         self.n_bins = length // 2 - 1
         self.frequencies = np.arange(1, self.n_bins + 1) / (length * moves.sample_period)
         self._bases: dict[tuple[Any, ...], list[NDArray[np.float64]]] = {}
@@ -653,8 +658,8 @@ class Comparison:
             r = _stack(spec[g] * w)
             r -= (bases[g].T @ r) @ bases[g].T
             z2[g] = r[:nb]**2 + r[nb:]**2
-            res_spec[g] = np.sqrt(z2[g]) / w * to_angle / math.sqrt(n - 2 - _SKIP)
-            noise_spec[g] = to_angle / w / math.sqrt(n - 2 - _SKIP)
+            res_spec[g] = np.sqrt(z2[g]) / w * to_angle / math.sqrt(_analysed(n))
+            noise_spec[g] = to_angle / w / math.sqrt(_analysed(n))
             per = resid_moves[idx]
             floor[g] = per.std(axis=0, ddof=1) / math.sqrt(len(idx))
             acc_floor[g] = np.diff(per, 2, axis=1).std(axis=0, ddof=1) / math.sqrt(len(idx))

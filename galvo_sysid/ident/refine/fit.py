@@ -577,15 +577,21 @@ def residual_to_noise(resid: NDArray[np.float64], dev: NDArray[np.float64],
                       sample_period: float) -> tuple[tuple[tuple[float, float], float], ...]:
     """Energy of the averaged residual over that expected from the noise, per interval.
 
-    The intervals cut [lowest band edge, highest band edge] at every band edge (so the gaps
-    between bands are checked too). About 1 for an adequate model.
+    The intervals cut the spectrum at every band edge: below the first band (from four
+    periods per record on), between the bands, and above the last one up to 0.98 x Nyquist,
+    so a mode outside every band shows too. About 1 for an adequate model.
     """
     m = dev.shape[0]
     win = np.hanning(resid.size)
     res_psd = np.abs(np.fft.rfft(resid * win)) ** 2
     noise_psd = np.mean(np.abs(np.fft.rfft(dev * win, axis=1)) ** 2, axis=0) / m
     freq = np.fft.rfftfreq(resid.size, sample_period) * 2 * math.pi
-    edges = sorted({e for band in band_list for e in band})
+    lowest = 2 * math.pi * 4 / (resid.size * sample_period)
+    top = 0.98 * math.pi / sample_period
+    cuts = {e for band in band_list for e in band}
+    if cuts:
+        cuts |= {e for e in (lowest, top) if e < min(cuts) or e > max(cuts)}
+    edges = sorted(cuts)
     out = []
     for lo, hi in itertools.pairwise(edges):
         sel = (freq >= lo) & (freq < hi)
