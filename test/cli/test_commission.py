@@ -1,0 +1,98 @@
+"""Commission once, then monitor: galvo-sysid commission on a bag, the file it writes used by
+identify and the simulator (a digital twin), as a user would run them."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+from conftest import VENV_BIN
+
+from galvo_sysid.field.simulate import simulate_bag
+from galvo_sysid.model import load_model
+from galvo_sysid.sim.family import random_scanner
+from galvo_sysid.sim.simulator import SimulatorConfig
+
+SEED = 7   # 27.1 us, 277 samples, 3 modes at 1.07, 1.74 and 3.15 kHz, 2 samples of delay
+
+
+def run(venv_bin: Path, *args: str | Path,
+        timeout: float = 180) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([str(venv_bin / 'galvo-sysid'), *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout, check=False)
+
+
+@pytest.fixture(scope='module')
+def commissioned(tmp_path_factory: pytest.TempPathFactory) -> tuple[
+        Path, Path, subprocess.CompletedProcess[str]]:
+    """A healthy scanner's bag (5 sizes x 200 moves), commissioned by the command line."""
+    scanner = random_scanner(SEED)
+    tmp = tmp_path_factory.mktemp('commission')
+    simulate_bag(tmp / 'healthy', angles=list(scanner.angles), moves_per_angle=200, seed=1,
+                 config=scanner.config)
+    proc = run(VENV_BIN, 'commission', tmp / 'healthy', '--out', tmp / 'scanner.yaml',
+               '--plot', tmp / 'bode.png', '--json')
+    return tmp, tmp / 'scanner.yaml', proc
+
+
+def test_commission_writes_the_scanners_model(commissioned) -> None:
+    tmp, path, proc = commissioned
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    truth = random_scanner(SEED).model
+    model = load_model(path)
+    assert out['modes'] == model.n_modes == truth.n_modes == 3
+    assert all(out['resolved'])
+    assert model.modal.natural_frequencies == pytest.approx(truth.modal.natural_frequencies,
+                                                            rel=2e-4)
+    assert model.dynamics.computation_delay == truth.dynamics.computation_delay
+    assert (model.sample_period, model.record_length) == (truth.sample_period,
+                                                          truth.record_length)
+    assert model.dwell_length == truth.dwell_length           # read from the stamps
+    assert set(model.std_by_name()) >= set(model.modal.parameters())
+    assert model.bands is not None
+    assert 'commissioned by galvo-sysid from healthy' in model.description
+    assert (tmp / 'bode.png').read_bytes()[:4] == b'\x89PNG'
+    assert [s['modes'] for s in out['steps']][:4] == [0, 1, 2, 3]
+
+
+def test_then_monitor_with_it(commissioned, venv_bin: Path) -> None:
+    tmp, path, _ = commissioned
+    scanner = random_scanner(SEED)
+    later = tmp / 'later'
+    simulate_bag(later, angles=[scanner.reference_angle], moves_per_angle=400, seed=2,
+                 config=scanner.config)
+    proc = run(venv_bin, 'identify', later, '--model', path, '--json')
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out['model_mismatch'] is None
+    assert len(out['windows']) == 4
+    for w in out['windows']:
+        assert w['drift']['level'] == 'OK', w['drift']['message']
+    # a changed scanner: its first mode 2 % lower is flagged, as drift of omega_1
+    changed = tmp / 'changed'
+    truth = scanner.model
+    simulate_bag(changed, angles=[scanner.reference_angle], moves_per_angle=400, seed=3,
+                 config=SimulatorConfig(plant=truth, design=truth), steps=['omega_1=0.98@0'])
+    proc = run(venv_bin, 'identify', changed, '--model', path, '--json')
+    assert proc.returncode == 0, proc.stderr
+    levels = {w['drift']['level'] for w in json.loads(proc.stdout)['windows']}
+    assert levels == {'ERROR'}
+    # and the paper's model is not this scanner's: said so, not drift
+    proc = run(venv_bin, 'identify', later)
+    assert proc.returncode == 1
+    assert 'do not match' in proc.stdout + proc.stderr
+
+
+def test_commission_says_what_is_wrong_in_one_line(venv_bin: Path, tmp_path: Path) -> None:
+    proc = run(venv_bin, 'commission', tmp_path / 'missing', '--out', tmp_path / 'm.yaml')
+    assert proc.returncode == 1
+    assert proc.stderr.count('\n') == 1
+    assert 'Traceback' not in proc.stderr
+    simulate_bag(tmp_path / 'few', angles=[0.3], moves_per_angle=20, seed=1)
+    proc = run(venv_bin, 'commission', tmp_path / 'few', '--out', tmp_path / 'm.yaml')
+    assert proc.returncode == 1
+    assert 'no window of 100 moves' in proc.stderr
+    assert not (tmp_path / 'm.yaml').exists()
