@@ -40,6 +40,7 @@ from galvo_sysid.errors import ConfigurationError, GalvoSysidError, InvalidDataE
 from galvo_sysid.ident.preprocess import validate_records
 from galvo_sysid.ident.refine import (
     RefinedFit,
+    RefineOptions,
     added_mode_gains,
     refine_joint,
     second_difference,
@@ -66,6 +67,11 @@ _SCAN_POINTS = 240
 _SCAN_DAMPING = (0.003, 0.01, 0.03)
 _MAX_DELAY = 3
 _LAG_BOUNDS = (0.0, 1.5)
+_OPTIONS = RefineOptions(lag_bounds=_LAG_BOUNDS, scan_points=0, keep_initial_damping=True,
+                         adequacy_limit=0.0)
+"""Joint fits of commissioning: from the previous order's model as it is, the lag within
+1.5 samples (beyond it the split from a whole sample of delay is ambiguous), no adequacy check
+(a model of too low an order is expected to leave dynamics)."""
 _MIN_SEPARATION = 1.08  # a new mode this close to a found one is the same mode
 _EVIDENCE = 25.0        # chi2 drop (5 sigma) a new mode needs before it is tried
 
@@ -241,10 +247,11 @@ def commission(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period:
         f'{hi / (2e3 * math.pi):.3g} kHz')
 
     def fit(modal: ModalModel, delay: int, lag: float) -> RefinedFit:
-        return refine_joint(chosen, sample_period=t, initial=modal, computation_delay=delay,
-                            lag_time_constant=lag, lag_bounds=_LAG_BOUNDS,
-                            bands=_bands(modal, lo, hi), scan_points=0,
-                            keep_initial_damping=True, noise_filters=filters)
+        return refine_joint(chosen, sample_period=t, initial=modal,
+                            dynamics=InputDynamics(computation_delay=delay,
+                                                   lag_time_constant=lag),
+                            bands=_bands(modal, lo, hi), options=_OPTIONS,
+                            noise_filters=filters)
 
     rigid = ModalModel(k0=1.0, residues=(), natural_frequencies=(), damping_ratios=())
     fits = []
@@ -397,10 +404,8 @@ def _pooled(records: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
             current: RefinedFit, lo: float, hi: float, t: float) -> RefinedFit:
     """The chosen model fitted jointly to the pooled windows (prewhitened per window)."""
     return refine_joint(records, sample_period=t, initial=current.model,
-                        computation_delay=current.computation_delay,
-                        lag_time_constant=current.lag_time_constant, lag_bounds=_LAG_BOUNDS,
-                        bands=_bands(current.model, lo, hi), scan_points=0,
-                        keep_initial_damping=True)
+                        dynamics=current.dynamics, bands=_bands(current.model, lo, hi),
+                        options=_OPTIONS)
 
 
 def _to_model(fit: RefinedFit, t: float, *, record_length: int,

@@ -30,7 +30,7 @@ identified input dynamics and least-squares initial conditions of the modes and 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -43,10 +43,17 @@ from galvo_sysid.errors import (
 )
 from galvo_sysid.ident.paper import paper_pipeline
 from galvo_sysid.ident.preprocess import MIN_ANGLE_SPAN, validate_records
-from galvo_sysid.ident.refine import DEFAULT_RESOLVE_Z as RESOLVE_Z
-from galvo_sysid.ident.refine import model_fit_percent, refine_fit, refine_joint
+from galvo_sysid.ident.refine import (
+    DEFAULT_RESOLVE_Z as RESOLVE_Z,
+)
+from galvo_sysid.ident.refine import (
+    RefineOptions,
+    model_fit_percent,
+    refine_fit,
+    refine_joint,
+)
 from galvo_sysid.model import PAPER_MODEL, ModalModel, PlantModel
-from galvo_sysid.model.dynamics import check_sample_period
+from galvo_sysid.model.dynamics import InputDynamics, check_sample_period
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -168,7 +175,8 @@ def _paper_window(cur: NDArray[np.float64], enc: NDArray[np.float64], *, sample_
     """Paper pipeline on a window: (model, delay, fit_percent)."""
     res = paper_pipeline(cur, enc, sample_period=sample_period, method=method, **options)
     fit = model_fit_percent(res.model, cur, enc, sample_period=sample_period,
-                            computation_delay=0, dead_time=float(res.delay))
+                            dynamics=InputDynamics(computation_delay=0, lag_time_constant=0.0,
+                                                   dead_time=float(res.delay)))
     return res.model, float(res.delay), fit
 
 
@@ -224,10 +232,11 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
             mode selection, default the model's), ``min_angle_span`` [deg]. Paper methods:
             ``delay`` (default the model's equivalent delay; None estimates it), ``na``,
             ``nb``, ``solver``, ``max_damping``, ``jackknife_groups`` (default 10; 0 for no
-            std, reported as nan). Refined: ``lag_time_constant``, ``estimate_lag``,
-            ``computation_delay``, ``dead_time``, ``damping_start``, ``extra_starts``,
-            ``scan_points``, ``lag_bounds``, ``resolve_z``, ``whiten_order``,
-            ``adequacy_limit``, ``max_nfev`` (see :func:`galvo_sysid.ident.refine.refine_fit`).
+            std, reported as nan). Refined: the input dynamics ``lag_time_constant`` (the
+            start), ``computation_delay``, ``dead_time`` (default the model's),
+            ``estimate_lag``, ``extra_starts`` and the fields of
+            :class:`~galvo_sysid.ident.refine.RefineOptions` (``scan_points``,
+            ``whiten_order``, ``adequacy_limit``, ...).
 
     Returns:
         The identified parameters with their standard deviations.
@@ -258,16 +267,12 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
         raise ConfigurationError(f'n_modes must be >= 1, got {n}')
     if len(bands) != n:
         raise ConfigurationError(f'{len(bands)} bands for {n} modes')
-    paper_keys = {'delay', 'na', 'nb', 'solver', 'max_damping'}
-    refine_keys = {'lag_time_constant', 'estimate_lag', 'computation_delay', 'dead_time',
-                   'damping_start', 'extra_starts', 'scan_points', 'lag_bounds', 'max_nfev',
-                   'resolve_z', 'whiten_order', 'adequacy_limit'}
     groups = int(opts.pop('jackknife_groups', _JACKKNIFE_GROUPS))
-    allowed = paper_keys | (refine_keys if method == 'refined' else set())
+    allowed = _PAPER_KEYS | (_REFINED_KEYS if method == 'refined' else set())
     unknown = set(opts) - allowed
     if unknown:
         raise ConfigurationError(f'unknown options for method {method!r}: {sorted(unknown)}')
-    paper_opts = {k: opts[k] for k in paper_keys & set(opts)}
+    paper_opts = {k: opts[k] for k in _PAPER_KEYS & set(opts)}
     paper_opts.setdefault('delay', plant.equivalent_delay)
     paper_opts.update(bands=bands, reference=reference, min_angle_span=min_span)
     cur, enc = validate_records(current, encoder, na=paper_opts.get('na', 15),
@@ -297,9 +302,10 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
         initial = reference
     if initial.n_modes != n:
         raise ConfigurationError(f'the starting model has {initial.n_modes} modes, not {n}')
-    refine_opts = {**_refine_defaults(plant), **{k: opts[k] for k in refine_keys & set(opts)}}
+    dynamics, tuning = _refine_setup(plant, opts, base=RefineOptions())
     refined = refine_fit(cur, enc, sample_period=t, initial=initial, bands=bands,
-                         **refine_opts)
+                         dynamics=dynamics, estimate_lag=bool(opts.get('estimate_lag', True)),
+                         extra_starts=opts.get('extra_starts', ()), options=tuning)
     return _from_vectors(refined.model.parameters(), refined.std_by_name(), n_modes=n,
                          target_angle=angle, moves=moves, input_delay=refined.input_delay,
                          lag_time_constant=refined.lag_time_constant,
@@ -315,13 +321,27 @@ def check_model_period(model: PlantModel, sample_period: float) -> None:
             f'{model.sample_period:.6g} s')
 
 
-def _refine_defaults(model: PlantModel) -> dict[str, Any]:
-    """The refined fit's input dynamics from the model (the lag is the start)."""
+_PAPER_KEYS = frozenset({'delay', 'na', 'nb', 'solver', 'max_damping'})
+"""Options of the paper pipeline (:func:`galvo_sysid.ident.paper.paper_pipeline`)."""
+
+_REFINED_KEYS = frozenset({'lag_time_constant', 'computation_delay', 'dead_time',
+                           'estimate_lag', 'extra_starts'}) | RefineOptions.names()
+"""Options of the refined fit: the input dynamics, the lag's estimation, extra starts and
+:class:`~galvo_sysid.ident.refine.RefineOptions`."""
+
+
+def _refine_setup(model: PlantModel, opts: dict[str, Any], *,
+                  base: RefineOptions) -> tuple[InputDynamics, RefineOptions]:
+    """The refined fit's input dynamics (the model's, the lag as the start) and tuning, both
+    overridden by ``opts``; the lag's bounds reach three times the model's lag."""  # noqa: D205, D209
     ph = model.physics()
-    t = model.sample_period
-    return {'computation_delay': ph.computation_delay, 'dead_time': ph.dead_time,
-            'lag_time_constant': ph.lag_time_constant,
-            'lag_bounds': (0.0, max(3.0, 3.0 * ph.lag_time_constant / t))}
+    dynamics = InputDynamics(
+        computation_delay=opts.get('computation_delay', ph.computation_delay),
+        lag_time_constant=float(opts.get('lag_time_constant', ph.lag_time_constant)),
+        dead_time=float(opts.get('dead_time', ph.dead_time)))
+    lag_bounds = (0.0, max(3.0, 3.0 * ph.lag_time_constant / model.sample_period))
+    tuning = RefineOptions.from_options(opts, base=replace(base, lag_bounds=lag_bounds))
+    return dynamics, tuning
 
 
 def _pool_parameter(v: NDArray[np.float64], s: NDArray[np.float64], *,
@@ -459,12 +479,8 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
                                      f'{plant.n_modes}; pass bands')
         bands = plant.mode_bands()
     min_span = float(opts.get('min_angle_span', MIN_ANGLE_SPAN))
-    joint_keys = {'lag_time_constant', 'estimate_lag', 'computation_delay', 'dead_time',
-                  'damping_start', 'scan_points', 'lag_bounds', 'max_nfev', 'resolve_z',
-                  'whiten_order', 'keep_initial_damping'}
-    unknown = set(opts) - joint_keys - {'reference', 'bands', 'min_angle_span', 'extra_starts',
-                                        'adequacy_limit', 'delay', 'na', 'nb', 'solver',
-                                        'max_damping'}
+    unknown = set(opts) - _REFINED_KEYS - _PAPER_KEYS - {'reference', 'bands',
+                                                          'min_angle_span'}
     if unknown:
         raise ConfigurationError(f'unknown options for identify_joint: {sorted(unknown)}')
     records = []
@@ -482,16 +498,17 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
         singles = []
         for cur, enc in records:
             try:
-                singles.append(identify_window(cur, enc, sample_period=sample_period,
-                                               model=plant, n_modes=n_modes, **opts))
+                singles.append(identify_window(
+                    cur, enc, sample_period=sample_period, model=plant, n_modes=n_modes,
+                    **{k: v for k, v in opts.items() if k != 'keep_initial_damping'}))
             except GalvoSysidError:
                 continue
         start = pool_results(singles).model if singles else reference
     if start.n_modes != n_modes:
         raise ConfigurationError(f'the starting model has {start.n_modes} modes, not {n_modes}')
-    joint_opts = {k: v for k, v in _refine_defaults(plant).items() if k in joint_keys}
-    joint_opts.update({k: opts[k] for k in joint_keys & set(opts)})
-    fit = refine_joint(records, sample_period=t, initial=start, bands=bands, **joint_opts)
+    dynamics, tuning = _refine_setup(plant, opts, base=RefineOptions(adequacy_limit=0.0))
+    fit = refine_joint(records, sample_period=t, initial=start, bands=bands, dynamics=dynamics,
+                       estimate_lag=bool(opts.get('estimate_lag', True)), options=tuning)
     if target_angle is None:
         est = np.array([_estimated_angle(enc) for _, enc in records])
         same = np.ptp(est) <= 0.01 * float(np.median(np.abs(est)))

@@ -10,6 +10,7 @@ from openloop_data import move_current, open_loop_window
 
 from galvo_sysid.errors import ConfigurationError, IdentificationError, InvalidDataError
 from galvo_sysid.ident.refine import (
+    RefineOptions,
     modal_regressors,
     model_fit_percent,
     refine_fit,
@@ -91,7 +92,8 @@ def test_assuming_a_pure_delay_biases_k2() -> None:
     # about -20 % whatever the fit; modelling the lag removes the bias.
     cur, enc = noise_free()
     pure = refine_fit(cur, enc, sample_period=TAU, initial=REFERENCE_MODEL,
-                      estimate_lag=False, lag_time_constant=0.0, dead_time=0.6 * TAU)
+                      estimate_lag=False,
+                      dynamics=InputDynamics(lag_time_constant=0.0, dead_time=0.6 * TAU))
     assert -0.25 < relative_errors(pure.model)['k2'] < -0.15
     assert pure.fit_percent < 99.9
     assert pure.input_delay == pytest.approx(1.6 * TAU)
@@ -156,10 +158,9 @@ def test_a_band_without_a_mode_raises() -> None:
 
 def test_model_fit_percent() -> None:
     cur, enc = noise_free()
-    assert model_fit_percent(REFERENCE_MODEL, cur, enc, sample_period=TAU,
-                             lag_time_constant=0.6 * TAU) > 99.999
-    assert model_fit_percent(TABLE_II_START, cur, enc, sample_period=TAU,
-                             lag_time_constant=0.6 * TAU) < 99
+    lag = InputDynamics(lag_time_constant=0.6 * TAU)
+    assert model_fit_percent(REFERENCE_MODEL, cur, enc, sample_period=TAU, dynamics=lag) > 99.999
+    assert model_fit_percent(TABLE_II_START, cur, enc, sample_period=TAU, dynamics=lag) < 99
 
 
 def test_bad_input_raises_typed_errors() -> None:
@@ -178,8 +179,12 @@ def test_bad_input_raises_typed_errors() -> None:
         refine_fit(cur, enc, sample_period=TAU, initial=REFERENCE_MODEL, bands=((1e4, 2e4),))
     with pytest.raises(ConfigurationError):
         refine_fit(cur, enc, sample_period=-1.0, initial=REFERENCE_MODEL)
-    with pytest.raises(ConfigurationError):
-        refine_fit(cur, enc, sample_period=TAU, initial=REFERENCE_MODEL, damping_start=0.9)
+    with pytest.raises(ConfigurationError, match='damping_start'):
+        RefineOptions(damping_start=0.9)
+    with pytest.raises(ConfigurationError, match='scan_points'):
+        RefineOptions(scan_points=-1)
+    with pytest.raises(ConfigurationError, match='lag_bounds'):
+        RefineOptions(lag_bounds=(2.0, 1.0))
     with pytest.raises(ConfigurationError):
         modal_regressors(cur, (1e5,), (0.01, 0.02), sample_period=TAU)
 

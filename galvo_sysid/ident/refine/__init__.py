@@ -14,29 +14,28 @@ vibration of the previous move), an offset and the lag state's initial value ent
 and are solved inside the loop (variable projection); only omega_i, zeta_i and T_l are
 optimised nonlinearly (:func:`scipy.optimize.least_squares`, Kaufman's Jacobian).
 
-Modules: ``regressors`` (exact ZOH responses of the modes, filtered), ``window`` (one
-window's averaged moves and their scatter), ``joint`` (variable projection over one or
-several windows, the sandwich covariance), ``profile`` (weak modes over their band),
-``fit`` (the one fit: :func:`refine_fit` for a window, :func:`refine_joint` for several).
+Modules: ``options`` (the tuning and its defaults), ``regressors`` (exact ZOH responses of
+the modes, filtered), ``window`` (one window's averaged moves and their scatter), ``joint``
+(variable projection over one or several windows, the sandwich covariance), ``profile`` (weak
+modes over their band), ``checks`` (bands, band edges, unresolved modes, the residual against
+the noise), ``fit`` (the one fit: :func:`refine_fit` for a window, :func:`refine_joint` for
+several), ``result`` (:class:`RefinedFit`), ``order`` (noise filters and the gain of one more
+mode, for choosing a model's order).
 """
 
-from galvo_sysid.ident.refine.fit import (
+from galvo_sysid.ident.refine.fit import refine_fit, refine_joint
+from galvo_sysid.ident.refine.options import (
     DEFAULT_ADEQUACY_LIMIT,
     DEFAULT_DAMPING_START,
     DEFAULT_LAG_BOUNDS,
     DEFAULT_RESOLVE_Z,
     DEFAULT_SCAN_POINTS,
     DEFAULT_WHITEN_ORDER,
-    RefinedFit,
-    added_mode_gains,
-    filtered_fit_percent,
-    fit_windows,
-    model_fit_percent,
-    refine_fit,
-    refine_joint,
-    window_noise_filters,
+    RefineOptions,
 )
+from galvo_sysid.ident.refine.order import added_mode_gains, window_noise_filters
 from galvo_sysid.ident.refine.regressors import modal_regressors, second_difference
+from galvo_sysid.ident.refine.result import RefinedFit, filtered_fit_percent, model_fit_percent
 from galvo_sysid.ident.refine.window import MIN_SAMPLES
 
 __all__ = [
@@ -47,10 +46,10 @@ __all__ = [
     'DEFAULT_SCAN_POINTS',
     'DEFAULT_WHITEN_ORDER',
     'MIN_SAMPLES',
+    'RefineOptions',
     'RefinedFit',
     'added_mode_gains',
     'filtered_fit_percent',
-    'fit_windows',
     'modal_regressors',
     'model_fit_percent',
     'refine_fit',

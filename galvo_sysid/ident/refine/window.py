@@ -39,7 +39,7 @@ if TYPE_CHECKING:
 
     Floats: TypeAlias = Sequence[float] | NDArray[np.float64]
 
-__all__ = ['MIN_SAMPLES', 'WindowProblem', 'validate', 'whitening_filter']
+__all__ = ['MIN_SAMPLES', 'WindowProblem', 'validate', 'whitening_filter', 'window_records']
 
 MIN_SAMPLES = 64
 """Fewest samples per record the refined fit accepts."""
@@ -70,6 +70,29 @@ def validate(current: ArrayLike, encoder: ArrayLike) -> tuple[NDArray[np.float64
     if not (np.all(np.isfinite(cur)) and np.all(np.isfinite(enc))):
         raise InvalidDataError('current or encoder contains NaN or Inf')
     return cur, enc
+
+
+def window_records(windows: Sequence[tuple[ArrayLike, ArrayLike]], min_moves: int) -> list[
+        tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """Each window's records checked, the encoder relative to each record's start.
+
+    Raises:
+        InvalidDataError: A bad window (its index is named when there are several).
+    """
+    out = []
+    for j, (current, encoder) in enumerate(windows):
+        where = f'window {j}: ' if len(windows) > 1 else ''
+        try:
+            cur, enc = validate(current, encoder)
+        except InvalidDataError as exc:
+            raise InvalidDataError(f'{where}{exc}') from exc
+        if cur.shape[0] < min_moves:
+            raise InvalidDataError(f'{where}a joint fit needs at least {min_moves} moves per '
+                                   f'window')
+        if not np.any(cur.mean(axis=0) - cur[:, 0].mean()):
+            raise InvalidDataError(f'{where}no excitation: the averaged current is constant')
+        out.append((cur, enc - enc[:, :1]))
+    return out
 
 
 def whitening_filter(dev: NDArray[np.float64], order: int,

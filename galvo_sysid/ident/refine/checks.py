@@ -1,0 +1,105 @@
+"""The refined fit's checks: bands, bounds, modes at a band edge, unresolved modes, adequacy.
+
+Adequacy is whether the residual is noise over the whole spectrum: below the first band,
+between the bands and above the last one.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.ident.refine.options import MAX_DAMPING, MIN_DAMPING
+from galvo_sysid.model.modal import default_bands
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from numpy.typing import NDArray
+
+    from galvo_sysid.model.modal import ModalModel
+
+__all__ = ['bands_for', 'bounds', 'edge_mode', 'inflate_unresolved', 'residual_to_noise']
+
+
+def bands_for(initial: ModalModel, bands: Sequence[tuple[float, float]] | None,
+              sample_period: float) -> list[tuple[float, float]]:
+    """Each mode's band [rad/s], checked (default: around ``initial``'s modes)."""
+    if bands is None:
+        bands = default_bands(initial, sample_period=sample_period) if initial.n_modes else ()
+    out = [(float(lo), float(hi)) for lo, hi in bands]
+    if len(out) != initial.n_modes:
+        raise ConfigurationError(f'{len(out)} bands for {initial.n_modes} modes')
+    nyquist = math.pi / sample_period
+    for lo, hi in out:
+        if not 0 < lo < hi <= nyquist:
+            raise ConfigurationError(f'bad band ({lo:.4g}, {hi:.4g}) rad/s (Nyquist {nyquist:.4g})')
+    return out
+
+
+def bounds(band_list: Sequence[tuple[float, float]], estimate_lag: bool,
+           lag_bounds: tuple[float, float]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Bounds of x = [ln omega_i, ln zeta_i, (T_l / T)]."""
+    n = len(band_list)
+    lb = [*np.log([lo for lo, _ in band_list]), *np.full(n, math.log(MIN_DAMPING))]
+    ub = [*np.log([hi for _, hi in band_list]), *np.full(n, math.log(MAX_DAMPING))]
+    if estimate_lag:
+        lb.append(lag_bounds[0])
+        ub.append(lag_bounds[1])
+    return np.array(lb), np.array(ub)
+
+
+def edge_mode(params: tuple[NDArray[np.float64], NDArray[np.float64], float],
+              band_list: Sequence[tuple[float, float]]) -> int | None:
+    """Index of the first mode stuck at a band edge or at the damping bound, else None."""
+    omega, zeta, _ = params
+    for i, ((lo, hi), w, z) in enumerate(zip(band_list, omega, zeta, strict=True)):
+        if not lo * 1.0005 < w < hi / 1.0005 or z > 0.99 * MAX_DAMPING:
+            return i
+    return None
+
+
+def inflate_unresolved(cov: NDArray[np.float64], unresolved: Sequence[int],
+                       band_list: Sequence[tuple[float, float]], n: int) -> None:
+    """Give the unresolved modes' omega and zeta (in place) at least a uniform prior's std."""
+    for i in unresolved:
+        lo, hi = band_list[i]
+        for j, floor in ((1 + n + i, (hi - lo) / math.sqrt(12.0)),
+                         (1 + 2 * n + i, MAX_DAMPING / math.sqrt(12.0))):
+            var = max(float(cov[j, j]), floor * floor)
+            cov[j, :] = 0.0
+            cov[:, j] = 0.0
+            cov[j, j] = var
+
+
+def residual_to_noise(resid: NDArray[np.float64], dev: NDArray[np.float64],
+                      band_list: Sequence[tuple[float, float]],
+                      sample_period: float) -> tuple[tuple[tuple[float, float], float], ...]:
+    """Energy of the averaged residual over that expected from the noise, per interval.
+
+    The intervals cut the spectrum at every band edge: below the first band (from four
+    periods per record on), between the bands, and above the last one up to 0.98 x Nyquist,
+    so a mode outside every band shows too. About 1 for an adequate model.
+    """
+    m = dev.shape[0]
+    win = np.hanning(resid.size)
+    res_psd = np.abs(np.fft.rfft(resid * win)) ** 2
+    noise_psd = np.mean(np.abs(np.fft.rfft(dev * win, axis=1)) ** 2, axis=0) / m
+    freq = np.fft.rfftfreq(resid.size, sample_period) * 2 * math.pi
+    lowest = 2 * math.pi * 4 / (resid.size * sample_period)
+    top = 0.98 * math.pi / sample_period
+    cuts = {e for band in band_list for e in band}
+    if cuts:
+        cuts |= {e for e in (lowest, top) if e < min(cuts) or e > max(cuts)}
+    edges = sorted(cuts)
+    out = []
+    for lo, hi in itertools.pairwise(edges):
+        sel = (freq >= lo) & (freq < hi)
+        noise = float(np.sum(noise_psd[sel]))
+        if noise > 0 and np.count_nonzero(sel) >= 3:
+            out.append(((lo, hi), float(np.sum(res_psd[sel])) / noise))
+    return tuple(out)
