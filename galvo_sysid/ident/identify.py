@@ -9,13 +9,14 @@ delay that was removed or modelled, and a fit measure. Methods:
   (exact ZOH with one sample of computation delay and the estimated amplifier lag), started
   from the paper pipeline's model; std from the sandwich covariance over the moves.
 - ``'paper-A'`` / ``'paper-B'``: the paper's pipeline
-(:func:`galvo_sysid.ident.paper.paper_pipeline`,
-  method A or B, 1.6 T pure delay); std from a delete-a-group jackknife over the moves.
+  (:func:`galvo_sysid.ident.paper.paper_pipeline`, method A or B, 1.6 T pure delay); std
+  from a delete-a-group jackknife over the moves.
 
 Pooled estimates of windows of the same plant:
 
-- :func:`pool_results` combines finished results (inverse-variance weighting per parameter,
-  outliers rejected, the std scaled up when the windows scatter more than their std say);
+- :func:`~galvo_sysid.ident.pool.pool_results` combines finished results (inverse-variance
+  weighting per parameter, outliers rejected, the std scaled up when the windows scatter more
+  than their std say);
 - :func:`identify_joint` fits one model to the windows' data at once (shared modal parameters,
   per-window initial conditions): sharper for a weakly excited mode that single windows hardly
   resolve (the third mode under smooth moves).
@@ -30,7 +31,7 @@ identified input dynamics and least-squares initial conditions of the modes and 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -42,16 +43,11 @@ from galvo_sysid.errors import (
     ModelMismatchError,
 )
 from galvo_sysid.ident.paper import paper_pipeline
+from galvo_sysid.ident.pool import pool_results
 from galvo_sysid.ident.preprocess import MIN_ANGLE_SPAN, validate_records
-from galvo_sysid.ident.refine import (
-    DEFAULT_RESOLVE_Z as RESOLVE_Z,
-)
-from galvo_sysid.ident.refine import (
-    RefineOptions,
-    model_fit_percent,
-    refine_fit,
-    refine_joint,
-)
+from galvo_sysid.ident.refine import DEFAULT_RESOLVE_Z as RESOLVE_Z
+from galvo_sysid.ident.refine import RefineOptions, model_fit_percent, refine_fit, refine_joint
+from galvo_sysid.ident.result import IdentificationResult, result_from_vectors
 from galvo_sysid.model import PAPER_MODEL, ModalModel, PlantModel
 from galvo_sysid.model.dynamics import InputDynamics, check_sample_period
 
@@ -60,108 +56,12 @@ if TYPE_CHECKING:
 
     from numpy.typing import ArrayLike, NDArray
 
-__all__ = [
-    'METHODS',
-    'IdentificationResult',
-    'check_model_period',
-    'identify_joint',
-    'identify_window',
-    'pool_results',
-]
+__all__ = ['METHODS', 'check_model_period', 'identify_joint', 'identify_window']
 
 METHODS = ('refined', 'paper-A', 'paper-B')
 """Methods :func:`identify_window` accepts."""
 
 _JACKKNIFE_GROUPS = 10
-
-
-@dataclass(frozen=True)
-class IdentificationResult:
-    """Modal parameters of one window (or a pool of windows) with their uncertainty.
-
-    Attributes:
-        target_angle: Signed commanded rotation of the window's moves [deg] (nan for a pool
-            of different angles).
-        moves: Moves used.
-        input_delay: Equivalent input delay removed before the fit or modelled in it [s]
-            (computation delay + dead time + amplifier lag).
-        lag_time_constant: Amplifier lag used or estimated [s] (0 if a pure delay was assumed).
-        k0: Rigid-body gain [deg/(A s^2)].
-        residues: k_i, ascending frequency.
-        natural_frequencies: omega_i [rad/s].
-        damping_ratios: zeta_i.
-        k0_std: Standard deviation of k0.
-        residues_std: Standard deviations of k_i.
-        natural_frequencies_std: Standard deviations of omega_i.
-        damping_ratios_std: Standard deviations of zeta_i.
-        fit_percent: Fit of the (1 - q^-1)^2-filtered averaged output [%] (see module docs).
-        method: ``'paper-A'``, ``'paper-B'`` or ``'refined'``.
-        resolved: Per mode, whether the data place it (its residue is significant, at least
-            5 standard deviations); an unresolved mode's numbers say nothing (its std is
-            widened to its band).
-    """
-
-    target_angle: float
-    moves: int
-    input_delay: float
-    lag_time_constant: float
-    k0: float
-    residues: tuple[float, ...]
-    natural_frequencies: tuple[float, ...]
-    damping_ratios: tuple[float, ...]
-    k0_std: float
-    residues_std: tuple[float, ...]
-    natural_frequencies_std: tuple[float, ...]
-    damping_ratios_std: tuple[float, ...]
-    fit_percent: float
-    method: str
-    resolved: tuple[bool, ...] = ()
-
-    @property
-    def model(self) -> ModalModel:
-        """The identified modal model."""
-        return ModalModel(k0=self.k0, residues=self.residues,
-                          natural_frequencies=self.natural_frequencies,
-                          damping_ratios=self.damping_ratios)
-
-    @property
-    def n_modes(self) -> int:
-        """Number of resonant modes."""
-        return len(self.residues)
-
-    def std_by_name(self) -> dict[str, float]:
-        """Standard deviation of every parameter, keyed like :meth:`ModalModel.parameters`."""
-        out = {'k0': float(self.k0_std)}
-        for prefix, values in (('k', self.residues_std), ('omega_', self.natural_frequencies_std),
-                               ('zeta_', self.damping_ratios_std)):
-            for i, v in enumerate(values, start=1):
-                out[f'{prefix}{i}'] = float(v)
-        return out
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict keyed by the field names (tuples as lists, non-finite as None)."""
-
-        def clean(v: Any) -> Any:
-            if isinstance(v, tuple):
-                return [clean(x) for x in v]
-            if isinstance(v, float):
-                return v if math.isfinite(v) else None
-            return v
-
-        return {f.name: clean(getattr(self, f.name)) for f in fields(self)}
-
-
-def _from_vectors(values: dict[str, float], stds: dict[str, float], *, n_modes: int,
-                  **meta: Any) -> IdentificationResult:
-    def pick(src: dict[str, float], prefix: str) -> tuple[float, ...]:
-        return tuple(float(src[f'{prefix}{i}']) for i in range(1, n_modes + 1))
-
-    return IdentificationResult(
-        k0=float(values['k0']), residues=pick(values, 'k'),
-        natural_frequencies=pick(values, 'omega_'), damping_ratios=pick(values, 'zeta_'),
-        k0_std=float(stds['k0']), residues_std=pick(stds, 'k'),
-        natural_frequencies_std=pick(stds, 'omega_'), damping_ratios_std=pick(stds, 'zeta_'),
-        **meta)
 
 
 def _estimated_angle(enc: NDArray[np.float64]) -> float:
@@ -290,7 +190,7 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
             stds = dict.fromkeys(found.parameters(), float('nan'))
         resolved = tuple(not abs(k) < RESOLVE_Z * stds.get(f'k{i}', math.nan)
                          for i, k in enumerate(found.residues, start=1))
-        return _from_vectors(found.parameters(), stds, n_modes=found.n_modes,
+        return result_from_vectors(found.parameters(), stds, n_modes=found.n_modes,
                              target_angle=angle, moves=moves, input_delay=delay,
                              lag_time_constant=0.0, fit_percent=fit, method=method,
                              resolved=resolved)
@@ -306,7 +206,7 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
     refined = refine_fit(cur, enc, sample_period=t, initial=initial, bands=bands,
                          dynamics=dynamics, estimate_lag=bool(opts.get('estimate_lag', True)),
                          extra_starts=opts.get('extra_starts', ()), options=tuning)
-    return _from_vectors(refined.model.parameters(), refined.std_by_name(), n_modes=n,
+    return result_from_vectors(refined.model.parameters(), refined.std_by_name(), n_modes=n,
                          target_angle=angle, moves=moves, input_delay=refined.input_delay,
                          lag_time_constant=refined.lag_time_constant,
                          fit_percent=refined.fit_percent, method='refined',
@@ -342,94 +242,6 @@ def _refine_setup(model: PlantModel, opts: dict[str, Any], *,
     lag_bounds = (0.0, max(3.0, 3.0 * ph.lag_time_constant / model.sample_period))
     tuning = RefineOptions.from_options(opts, base=replace(base, lag_bounds=lag_bounds))
     return dynamics, tuning
-
-
-def _pool_parameter(v: NDArray[np.float64], s: NDArray[np.float64], *,
-                    reject: float) -> tuple[float, float]:
-    """Inverse-variance mean and std of one parameter, with outlier rejection."""
-    ok = np.isfinite(s) & (s > 0) & np.isfinite(v)
-    if not np.any(ok):
-        finite = v[np.isfinite(v)]
-        return (float(np.mean(finite)) if finite.size else float('nan')), float('nan')
-    v, s = v[ok], s[ok]
-    if reject > 0 and v.size > 2:
-        # Robust centre: the median of the better-determined half of the windows (a weighted
-        # median would follow a single outlier with a tiny std); drop windows farther from it
-        # than ``reject`` of their own std.
-        centre = float(np.median(v[s <= np.median(s)]))
-        keep = np.abs(v - centre) <= reject * s
-        if np.count_nonzero(keep) >= max(2, v.size // 2):
-            v, s = v[keep], s[keep]
-    # weights relative to the smallest std (in (0, 1]): 1/std^2 itself under- or overflows
-    # for extreme stds
-    scale = float(np.min(s))
-    with np.errstate(under='ignore'):
-        w = (scale / s) ** 2
-    mean = float(np.sum(w * v) / np.sum(w))
-    std = scale / math.sqrt(float(np.sum(w)))
-    if v.size > 1:
-        with np.errstate(over='ignore', invalid='ignore'):
-            chi2 = float(np.sum(w * ((v - mean) / scale) ** 2))
-        std *= max(1.0, math.sqrt(chi2 / (v.size - 1)))
-    return mean, std
-
-
-def pool_results(results: Sequence[IdentificationResult], *,
-                 reject: float = 5.0) -> IdentificationResult:
-    """Combine windows of the same plant: inverse-variance weighted mean per parameter.
-
-    Per parameter: windows farther than ``reject`` of their own std from a robust centre (the
-    median of the better-determined half of the windows) are left out (a window whose weak
-    mode locked onto a noise peak reports a small std far from the others); the rest are
-    averaged with weights 1/std^2. The pooled std is the
-    inverse-variance std scaled by the Birge ratio ``sqrt(chi^2 / (n - 1))`` when that exceeds
-    1 (the windows scatter more than their std say, e.g. an angle-dependent bias). Windows
-    without a finite positive std for a parameter are left out of it (plain mean and nan std
-    if none has one).
-
-    Args:
-        results: Windows of one method and one number of modes.
-        reject: Outlier threshold in std (0: keep every window).
-
-    Returns:
-        The pooled result: ``target_angle`` is the common angle or nan, ``moves`` the total,
-        ``fit_percent`` the move-weighted mean, delays the means.
-
-    Raises:
-        InvalidDataError: No results, different methods or numbers of modes.
-    """
-    items = list(results)
-    if not items:
-        raise InvalidDataError('nothing to pool')
-    methods = {r.method for r in items}
-    if len(methods) != 1:
-        raise InvalidDataError(f'cannot pool different methods: {sorted(methods)}')
-    n_modes = {r.n_modes for r in items}
-    if len(n_modes) != 1:
-        raise InvalidDataError('cannot pool results with different numbers of modes')
-    values = [r.model.parameters() for r in items]
-    stds = [r.std_by_name() for r in items]
-    pooled: dict[str, float] = {}
-    pooled_std: dict[str, float] = {}
-    for name in values[0]:
-        v = np.array([p[name] for p in values])
-        s = np.array([p[name] for p in stds])
-        pooled[name], pooled_std[name] = _pool_parameter(v, s, reject=reject)
-    angles = {r.target_angle for r in items}
-    angle = items[0].target_angle if len(angles) == 1 else float('nan')
-    moves = int(sum(r.moves for r in items))
-    weights = np.array([r.moves for r in items], dtype=float)
-    fits = np.array([r.fit_percent for r in items])
-    fit = float(np.sum(weights * fits) / np.sum(weights)) if np.all(np.isfinite(fits)) \
-        else float(np.nanmean(fits)) if np.any(np.isfinite(fits)) else float('nan')
-    n = n_modes.pop()
-    resolved = tuple(not abs(pooled[f'k{i}']) < RESOLVE_Z * pooled_std[f'k{i}']
-                     for i in range(1, n + 1))
-    return _from_vectors(pooled, pooled_std, n_modes=n, target_angle=angle,
-                         moves=moves,
-                         input_delay=float(np.mean([r.input_delay for r in items])),
-                         lag_time_constant=float(np.mean([r.lag_time_constant for r in items])),
-                         fit_percent=fit, method=methods.pop(), resolved=resolved)
 
 
 def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float,
@@ -515,7 +327,7 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
         angle = float(np.median(est)) if same else float('nan')
     else:
         angle = float(target_angle)
-    return _from_vectors(fit.model.parameters(), fit.std_by_name(), n_modes=n_modes,
+    return result_from_vectors(fit.model.parameters(), fit.std_by_name(), n_modes=n_modes,
                          target_angle=angle, moves=int(sum(c.shape[0] for c, _ in records)),
                          input_delay=fit.input_delay, lag_time_constant=fit.lag_time_constant,
                          fit_percent=fit.fit_percent, method='refined', resolved=fit.resolved)
