@@ -32,7 +32,7 @@ from typing import Any
 for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
     os.environ.setdefault(_var, '1')
 
-from galvo_sysid.discrepancy.workflow import MoveSet, find_discrepancy  # noqa: E402
+from galvo_sysid.discrepancy import MoveSet, find_discrepancy  # noqa: E402
 from galvo_sysid.model import PSI, TAU  # noqa: E402
 
 CASES: dict[str, list[tuple[str, dict[str, float]]]] = {

@@ -31,7 +31,8 @@ from galvo_sysid.model.files import save_model
 if TYPE_CHECKING:
     import os
 
-    from galvo_sysid.discrepancy.workflow import DiscrepancyResult, Localisation
+    from galvo_sysid.discrepancy.localise import Localisation
+    from galvo_sysid.discrepancy.workflow import DiscrepancyResult
 
 __all__ = ['format_result', 'json_safe', 'write_report']
 
@@ -130,6 +131,13 @@ def _pyplot() -> Any:
     return plt
 
 
+def _save(plt: Any, fig: Any, path: Path) -> None:
+    """Lay out a figure, write it (100 dpi) and close it."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def _grid(n: int) -> tuple[int, int]:
     cols = 2 if n > 1 else 1
     return math.ceil(n / cols), cols
@@ -163,9 +171,7 @@ def _plot_spectra(result: DiscrepancyResult, path: Path) -> None:
             ax.set_xlabel('frequency [Hz]')
     fig.suptitle('Mean residual spectra (random ringing of the modes projected out) vs the '
                  'noise floor of the mean', fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def _plot_moves(result: DiscrepancyResult, path: Path) -> None:
@@ -201,9 +207,7 @@ def _plot_moves(result: DiscrepancyResult, path: Path) -> None:
             a.grid(True, alpha=0.3)
     fig.suptitle('Mean of the moves: measured vs simulated (driven by the measured current)',
                  fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def _plot_candidates(result: DiscrepancyResult, path: Path) -> None:
@@ -234,9 +238,7 @@ def _plot_candidates(result: DiscrepancyResult, path: Path) -> None:
         if i == 0:
             ax.legend(fontsize=7)
     fig.suptitle('Candidate effects', fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def _plot_where(result: DiscrepancyResult, path: Path) -> None:
@@ -268,9 +270,7 @@ def _plot_where(result: DiscrepancyResult, path: Path) -> None:
     for ax in axes:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def write_report(result: DiscrepancyResult, directory: str | os.PathLike[str], *,

@@ -1,0 +1,51 @@
+"""``galvo-sysid discrepancy`` on a bag, end to end, and its module entry point."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from discrepancy_cases import ANGLES, MOVES_PER_ANGLE
+
+from galvo_sysid.discrepancy import read_moves
+
+
+def test_cli_on_a_bag(tmp_path, capsys):
+    from galvo_sysid.cli.main import main
+    from galvo_sysid.field.simulate import simulate_bag
+
+    bag = tmp_path / 'gain'
+    simulate_bag(bag, angles=list(ANGLES), moves_per_angle=MOVES_PER_ANGLE, seed=5,
+                 effects=['gain_change:gain_ratio=0.95'])
+    moves, rejected = read_moves(bag)
+    assert moves.moves == 3 * MOVES_PER_ANGLE
+    assert rejected == []
+    assert np.isfinite(moves.stamp).all()
+    augmented = tmp_path / 'aug.yaml'
+    assert main(['discrepancy', str(bag), '--json', '--save-model', str(augmented),
+                 '--max-effects', '1']) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data['effect'] == 'gain_change'
+    assert data['parameters']['gain_ratio'] == pytest.approx(0.95, rel=0.002)
+    assert data['gap_after'] <= 0.5 * data['gap_before']
+    # the augmented model explains the same bag: nothing left to find
+    assert main(['discrepancy', str(bag), '--model', str(augmented), '--effects',
+                 'gain_change', 'coulomb_friction']) == 0
+    text = capsys.readouterr().out
+    assert 'found: none' in text
+    assert main(['discrepancy', str(tmp_path / 'missing')]) == 1
+    assert 'error' in capsys.readouterr().err
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('mechanics: {}\n')
+    assert main(['discrepancy', str(bag), '--model', str(bad)]) == 1
+    assert "'k0' is missing" in capsys.readouterr().err
+
+
+def test_module_entry_point_help():
+    out = subprocess.run([sys.executable, '-m', 'galvo_sysid.cli.discrepancy', '--help'],
+                         capture_output=True, text=True, check=True)
+    assert 'unmodeled_resonance' in out.stdout
+    assert '--report DIR' in out.stdout

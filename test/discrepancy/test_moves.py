@@ -1,0 +1,30 @@
+"""The moves of a bag: target angles with too few moves for a noise floor are set aside."""
+
+from __future__ import annotations
+
+import pytest
+
+from galvo_sysid.discrepancy import read_moves
+from galvo_sysid.errors import InvalidDataError
+
+
+def test_angles_with_too_few_moves_are_set_aside(tmp_path):
+    from galvo_sysid.field.bags import CURRENT_TOPIC, ENCODER_TOPIC, MOVE_SAMPLES, BagWriter
+    from galvo_sysid.field.simulate import write_moves
+    from galvo_sysid.sim.simulator import GalvoSimulator
+
+    sim = GalvoSimulator(seed=1)
+    moves = [*sim.moves(angles=[0.3], moves_per_angle=8), sim.run_move(1.0),
+             sim.run_move(-1.0)]
+    path = tmp_path / 'few'
+    with BagWriter(path) as bag:
+        bag.add_topic(CURRENT_TOPIC, MOVE_SAMPLES)
+        bag.add_topic(ENCODER_TOPIC, MOVE_SAMPLES)
+        write_moves(bag, moves)
+    found, rejected = read_moves(path)
+    assert found.moves == 8
+    assert sorted(found.move_id.tolist()) == list(range(8))
+    assert [r['move_id'] for r in rejected] == [8, 9]
+    assert 'noise floor needs 3' in rejected[0]['reason']
+    with pytest.raises(InvalidDataError, match='no target angle has 9'):
+        read_moves(path, min_moves=9)
