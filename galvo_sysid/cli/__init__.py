@@ -1,4 +1,5 @@
 """The ``galvo-sysid`` command-line tool.
 
-One module per subcommand group; ``main`` builds the parser.
+One module per subcommand (``add_parser`` and ``run``), what they share once in ``common``;
+``main`` builds the parser and runs the command.
 """

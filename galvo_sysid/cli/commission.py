@@ -11,6 +11,8 @@ import json
 import sys
 from typing import Any
 
+from galvo_sysid.cli.common import BAG_HELP, add_subcommand, json_safe, positive
+
 __all__ = ['add_parser', 'register', 'run']
 
 _DESCRIPTION = """\
@@ -41,32 +43,21 @@ examples:
 exit codes: 0 model written, 1 bad input or nothing to commission from, 2 usage error"""
 
 
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'not an integer: {text!r}') from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'must be >= 1: {text!r}')
-    return value
-
-
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``commission`` subcommand to an argparse subparsers object."""
-    p: argparse.ArgumentParser = subparsers.add_parser(
-        'commission', formatter_class=argparse.RawDescriptionHelpFormatter,
-        description=_DESCRIPTION, epilog=_EPILOG,
+    p = add_subcommand(
+        subparsers, 'commission', description=_DESCRIPTION, epilog=_EPILOG,
         help="learn a healthy scanner's model file from a bag of its moves")
-    p.add_argument('bag', help='rosbag2 bag: directory, .mcap or .db3 file')
+    p.add_argument('bag', help=BAG_HELP)
     p.add_argument('--out', required=True, metavar='MODEL.yaml',
                    help='plant-model file to write')
     p.add_argument('--plot', metavar='FILE',
                    help='also write the Bode plot, measured against the model (.png/.pdf/.svg)')
     p.add_argument('--json', action='store_true', help='print one JSON object on stdout')
-    p.add_argument('--max-modes', type=_count, default=6, metavar='N',
-                   help='most resonant modes looked for (default: 6)')
-    p.add_argument('--window-size', type=_count, default=100, metavar='N',
-                   help='moves per window (default: 100, as the sysid node)')
+    p.add_argument('--max-modes', type=positive(int), default=6, metavar='N',
+                   help='most resonant modes looked for')
+    p.add_argument('--window-size', type=positive(int), default=100, metavar='N',
+                   help='moves per window (default: %(default)s, as the sysid node)')
     p.add_argument('--namespace', metavar='NS',
                    help='scanner namespace when the bag holds several (e.g. /left)')
     return p
@@ -105,8 +96,6 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         commission_figure(found).savefig(args.plot, dpi=120)
     if args.json:
-        from galvo_sysid.discrepancy.report import json_safe
-
         json.dump(json_safe(found.to_dict()), sys.stdout, allow_nan=False)
         sys.stdout.write('\n')
     else:

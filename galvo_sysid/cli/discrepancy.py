@@ -13,6 +13,9 @@ import json
 import sys
 from typing import TYPE_CHECKING, Any
 
+from galvo_sysid import limit_blas_threads
+from galvo_sysid.cli.common import HelpFormatter, finite_float, json_safe, one_line, positive
+
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
@@ -57,37 +60,13 @@ examples:
 exit codes: 0 ok (whatever was found), 1 bad input, 2 usage error"""
 
 
-class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
-    """Keep the hand-made line breaks and show defaults."""
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'not an integer: {text!r}') from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'must be >= 1: {text!r}')
-    return value
-
-
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'not a number: {text!r}') from None
-    if value != value or value in (float('inf'), float('-inf')):
-        raise argparse.ArgumentTypeError(f'must be finite: {text!r}')
-    return value
-
-
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``discrepancy`` subcommand to an argparse subparsers object."""
     from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD
     from galvo_sysid.model.effects import EFFECT_NAMES
 
     p: argparse.ArgumentParser = subparsers.add_parser(
-        'discrepancy', formatter_class=_Formatter, description=_DESCRIPTION, epilog=_EPILOG,
+        'discrepancy', formatter_class=HelpFormatter, description=_DESCRIPTION, epilog=_EPILOG,
         help='where a plant model and a bag disagree, and which effect is missing')
     _arguments(p, DEFAULT_THRESHOLD, EFFECT_NAMES)
     return p
@@ -103,13 +82,13 @@ def _arguments(p: argparse.ArgumentParser, threshold: float,
     p.add_argument('--report', metavar='DIR', help='write figures and files into DIR')
     p.add_argument('--save-model', metavar='FILE',
                    help='write the augmented model (YAML) to FILE')
-    p.add_argument('--threshold', type=_finite, default=threshold, metavar='S',
+    p.add_argument('--threshold', type=finite_float, default=threshold, metavar='S',
                    help='score (BIC drop) a candidate needs to be accepted')
-    p.add_argument('--max-effects', type=_positive_int, default=3, metavar='N',
+    p.add_argument('--max-effects', type=positive(int), default=3, metavar='N',
                    help='most effects added in turn')
     p.add_argument('--effects', nargs='+', choices=list(effect_names), metavar='NAME',
                    default=list(effect_names), help='candidate effects to try')
-    p.add_argument('--max-moves-per-angle', type=_positive_int, default=None, metavar='N',
+    p.add_argument('--max-moves-per-angle', type=positive(int), default=None, metavar='N',
                    help='use at most N moves of each signed target angle (the first; '
                         'default: all)')
     p.add_argument('--namespace', metavar='NS',
@@ -127,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     Raises:
         GalvoSysidError: Bad bag, model or data (the caller prints one line).
     """
-    from galvo_sysid.discrepancy.report import format_result, json_safe, write_report
+    from galvo_sysid.discrepancy.report import format_result, write_report
     from galvo_sysid.discrepancy.workflow import find_discrepancy, read_moves
     from galvo_sysid.model.files import load_model, save_model
 
@@ -170,18 +149,19 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``discrepancy`` alone (``python -m galvo_sysid.cli.discrepancy``)."""
+    limit_blas_threads()  # before numpy is imported
     from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD
     from galvo_sysid.errors import GalvoSysidError
     from galvo_sysid.model.effects import EFFECT_NAMES
 
     parser = argparse.ArgumentParser(prog='galvo-sysid discrepancy', description=_DESCRIPTION,
-                                     epilog=_EPILOG, formatter_class=_Formatter)
+                                     epilog=_EPILOG, formatter_class=HelpFormatter)
     _arguments(parser, DEFAULT_THRESHOLD, EFFECT_NAMES)
     args = parser.parse_args(argv)
     try:
         return run(args)
     except (GalvoSysidError, OSError) as err:
-        print(f'galvo-sysid discrepancy: error: {" ".join(str(err).split())}', file=sys.stderr)
+        print(f'galvo-sysid discrepancy: error: {one_line(err)}', file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print('galvo-sysid discrepancy: interrupted', file=sys.stderr)

@@ -1,4 +1,11 @@
-"""Field work.
+"""Field work: bags, offline identification, simulate-to-bag, live record/replay/echo, plots.
 
-Bags, offline identification, simulate-to-bag, live record/replay/echo, plots, the demo.
+- :mod:`~galvo_sysid.field.bags`: reading and writing rosbag2 bags (reader, writer, message
+  definitions, errors);
+- :mod:`~galvo_sysid.field.offline`: identification of a bag, as the sysid node does it;
+- :mod:`~galvo_sysid.field.simulate`: bags straight from the simulator;
+- :mod:`~galvo_sysid.field.commission`: a healthy scanner's model file from a bag;
+- :mod:`~galvo_sysid.field.live`: record, replay and echo on the live ROS 2 graph (rclpy);
+- :mod:`~galvo_sysid.field.plots`: Bode and trend figures;
+- :mod:`~galvo_sysid.field.demo`: ``make demo``, the three nodes live.
 """

@@ -188,6 +188,9 @@ class _Demo:
 
 def main() -> int:
     """Run the demo; return the process exit code."""
+    from galvo_sysid import limit_blas_threads
+
+    limit_blas_threads()  # before numpy is imported; the node processes inherit it
     from galvo_sysid.model import REFERENCE_MODEL
 
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')

@@ -92,6 +92,10 @@ def test_help_teaches_every_subcommand(venv_bin: Path) -> None:
         sub = run(venv_bin, name, '--help')
         assert sub.returncode == 0, sub.stderr
         assert 'examples:' in sub.stdout or name == 'info'
+    for name in (*SUBCOMMANDS, 'commission', 'discrepancy'):  # one help formatter for all
+        sub = run(venv_bin, name, '--help')
+        assert '(default: None)' not in sub.stdout
+        assert '(default: False)' not in sub.stdout
 
 
 def test_usage_error_exit_code(venv_bin: Path) -> None:
@@ -296,36 +300,6 @@ def test_bad_plot_name_is_said_before_the_work(venv_bin: Path, sim_bag: Path,
     assert_one_line_error(proc, 'does not exist')
 
 
-def test_progress_bar_only_on_a_terminal_and_only_when_slow() -> None:
-    import io
-
-    from galvo_sysid.cli.main import _Progress
-
-    class Tty(io.StringIO):
-        def isatty(self) -> bool:
-            return True
-
-    quiet = io.StringIO()
-    bar = _Progress(quiet, 'identify', enabled=True, delay=0.0)
-    bar(5, 10)
-    assert quiet.getvalue() == ''  # not a terminal
-    tty = Tty()
-    bar = _Progress(tty, 'identify', enabled=True, delay=0.0)
-    bar(10, 10)
-    assert '100 %' in tty.getvalue()
-    assert '(10/10 messages' in tty.getvalue()
-    bar.close()
-    assert tty.getvalue().endswith('\r\033[K')
-    fast = Tty()
-    bar = _Progress(fast, 'identify', enabled=True, delay=60.0)
-    bar(10, 10)
-    bar.close()
-    assert fast.getvalue() == ''  # a short run draws nothing
-    off = Tty()
-    _Progress(off, 'identify', enabled=False, delay=0.0)(1, 2)  # --json
-    assert off.getvalue() == ''
-
-
 def test_node_parameter_files(venv_bin: Path, sim_bag: Path, tmp_path: Path) -> None:
     from galvo_sysid.model import PAPER_MODEL, ModalModel, save_model
 
@@ -366,6 +340,30 @@ def test_builtin_commands_register_no_plugin(sim_bag: Path) -> None:
                           check=False, timeout=60)
     assert proc.stdout.splitlines()[-1] == '0 []', proc.stdout + proc.stderr
 
+
+def test_importing_leaves_the_environment_alone_and_main_limits_blas(tmp_path: Path) -> None:
+    """Only the entry point sets the BLAS thread count (before numpy is loaded), not an import."""
+    import os
+    import sys
+
+    from galvo_sysid import BLAS_THREAD_VARIABLES
+
+    code = ('import os, sys\n'
+            'before = dict(os.environ)\n'
+            'import galvo_sysid, galvo_sysid.cli.main, galvo_sysid.field.bags\n'
+            'import galvo_sysid.field.live, galvo_sysid.field.simulate\n'
+            'print(dict(os.environ) == before)\n'
+            'from galvo_sysid.cli import main as cli\n'
+            f'rc = cli.main(["info", {str(tmp_path / "none")!r}])\n'
+            'print(rc, [os.environ.get(v) for v in galvo_sysid.BLAS_THREAD_VARIABLES])\n')
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_THREAD_VARIABLES}
+    proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          check=False, timeout=60, env=env)
+    assert proc.stdout.splitlines() == ['True', "1 ['1', '1', '1']"], proc.stdout + proc.stderr
+    env['OPENBLAS_NUM_THREADS'] = '2'  # a setting of the user's wins
+    proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          check=False, timeout=60, env=env)
+    assert proc.stdout.splitlines()[-1] == "1 ['2', '1', '1']", proc.stdout + proc.stderr
 
 
 def test_simulate_help_examples_run(tmp_path: Path, repo: Path, monkeypatch) -> None:

@@ -1,11 +1,4 @@
-"""Reading and writing rosbag2 bags of galvo topics with rosbags (no ROS install needed).
-
-Bags are standard rosbag2 recordings (mcap by default, sqlite3 on request) that carry the
-message definitions of every topic, so any rosbag2 reader (``ros2 bag``, rosbags'
-``AnyReader``, Foxglove) decodes them without having ``galvo_sysid_msgs`` installed.
-
-The ``galvo_sysid_msgs`` definitions are taken from the installed interface package
-(``<prefix>/share/galvo_sysid_msgs/msg``) or, in a source checkout, from ``msg_defs/msg``.
+"""Reading rosbag2 bags of galvo topics: :class:`BagReader` and what it yields.
 
 Reading::
 
@@ -13,224 +6,43 @@ Reading::
         for item in bag.move_halves():
             ...  # MoveHalf, or SetAside for a message that could not be decoded
 
-Writing::
-
-    with BagWriter('out/run1', storage='mcap') as bag:
-        bag.add_topic(CURRENT_TOPIC, MOVE_SAMPLES)
-        bag.write_raw(CURRENT_TOPIC, timestamp_ns, cdr_bytes)
-
-Errors on bad input are :class:`BagError` subclasses (themselves
-:class:`~galvo_sysid.errors.InvalidDataError`) with one-line messages.
+Messages are decoded with the definitions stored in the bag; a bag without them is decoded
+with :func:`~galvo_sysid.field.bags.definitions.galvo_typestore`.
 """
 
 from __future__ import annotations
 
 import contextlib
-import os
-import re
-import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any
 
 from rosbags.highlevel import AnyReader, AnyReaderError
-from rosbags.interfaces import (
-    ConnectionExtRosbag2,
-    Qos,
-    QosDurability,
-    QosHistory,
-    QosLiveliness,
-    QosReliability,
-    QosTime,
-)
-from rosbags.rosbag2 import (
-    CompressionFormat,
-    CompressionMode,
-    StoragePlugin,
-    Writer,
-    WriterError,
-)
-from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
+from rosbags.interfaces import ConnectionExtRosbag2, QosDurability
 
-from galvo_sysid.errors import GalvoSysidError, InvalidDataError
+from galvo_sysid.errors import GalvoSysidError
+from galvo_sysid.field.bags.base import BagFile
+from galvo_sysid.field.bags.definitions import MOVE_SAMPLES, galvo_typestore
+from galvo_sysid.field.bags.errors import (
+    BagError,
+    BagNotFoundError,
+    CorruptBagError,
+    NoGalvoTopicsError,
+    WrongTopicTypeError,
+    reason,
+)
 
 if TYPE_CHECKING:
+    import os
     from collections.abc import Iterable, Iterator
-    from types import TracebackType
 
-    from numpy.typing import ArrayLike
     from rosbags.interfaces import Connection
-    from rosbags.typesys.store import Typestore
 
     from galvo_sysid.monitor.pairing import MoveHalf
 
-__all__ = [
-    'CURRENT_TOPIC',
-    'DRIFT_STATUS',
-    'DRIFT_TOPIC',
-    'ENCODER_TOPIC',
-    'GALVO_TOPICS',
-    'MODAL_PARAMETERS',
-    'MODAL_PARAMETERS_TOPIC',
-    'MOVE_SAMPLES',
-    'BagError',
-    'BagExistsError',
-    'BagInfo',
-    'BagNotFoundError',
-    'BagReader',
-    'BagWriter',
-    'CorruptBagError',
-    'NoGalvoTopicsError',
-    'RawMessage',
-    'SetAside',
-    'TopicInfo',
-    'WrongTopicTypeError',
-    'find_message_definition',
-    'galvo_typestore',
-    'msg_search_dirs',
-    'stamp_to_ns',
-]
+__all__ = ['BagInfo', 'BagReader', 'RawMessage', 'SetAside', 'TopicInfo']
 
-CURRENT_TOPIC = '/galvo/current'
-ENCODER_TOPIC = '/galvo/encoder'
-MODAL_PARAMETERS_TOPIC = '/galvo/modal_parameters'
-DRIFT_TOPIC = '/galvo/drift'
-GALVO_TOPICS = (CURRENT_TOPIC, ENCODER_TOPIC, MODAL_PARAMETERS_TOPIC, DRIFT_TOPIC)
-"""The topics the galvo nodes publish (without namespace)."""
-
-MOVE_SAMPLES = 'galvo_sysid_msgs/msg/MoveSamples'
-MODAL_PARAMETERS = 'galvo_sysid_msgs/msg/ModalParameters'
-DRIFT_STATUS = 'galvo_sysid_msgs/msg/DriftStatus'
-_GALVO_MSGS = 'galvo_sysid_msgs'
 _SIGNALS = {'current': 'galvo/current', 'encoder': 'galvo/encoder'}
-_TYPE_RE = re.compile(r'^([A-Za-z][A-Za-z0-9_]*)/(?:msg/)?([A-Za-z][A-Za-z0-9_]*)$')
-
-
-class BagError(InvalidDataError):
-    """A bag cannot be used; the message is one line naming the bag and the reason."""
-
-
-class BagNotFoundError(BagError, FileNotFoundError):
-    """The bag path does not exist."""
-
-
-class CorruptBagError(BagError):
-    """The bag exists but cannot be read: not a bag, corrupt or truncated."""
-
-
-class NoGalvoTopicsError(BagError):
-    """The bag holds no ``galvo/current`` and ``galvo/encoder`` topics."""
-
-
-class WrongTopicTypeError(BagError):
-    """A galvo topic in the bag has another message type than expected."""
-
-
-class BagExistsError(BagError, FileExistsError):
-    """The output bag already exists (bags are never overwritten)."""
-
-
-# --------------------------------------------------------------------------- definitions
-
-
-def msg_search_dirs(package: str = _GALVO_MSGS) -> list[Path]:
-    """Directories that may hold ``<package>``'s ``.msg`` files, most preferred first.
-
-    The installed interface package (``sys.prefix``, then each ``AMENT_PREFIX_PATH`` entry)
-    comes before the source checkout's ``msg_defs/msg`` (only for ``galvo_sysid_msgs``).
-    """
-    prefixes = [Path(sys.prefix)]
-    prefixes += [Path(p) for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
-    dirs = [prefix / 'share' / package / 'msg' for prefix in prefixes]
-    if package == _GALVO_MSGS:
-        dirs.append(Path(__file__).resolve().parents[2] / 'msg_defs' / 'msg')
-    unique: list[Path] = []
-    for d in dirs:
-        if d not in unique:
-            unique.append(d)
-    return unique
-
-
-def _split_type(msgtype: str) -> tuple[str, str]:
-    match = _TYPE_RE.match(msgtype)
-    if not match:
-        msg = f'not a ROS 2 message type name: {msgtype!r}'
-        raise BagError(msg)
-    return match.group(1), match.group(2)
-
-
-def find_message_definition(msgtype: str) -> str | None:
-    """Return the ``.msg`` text of ``msgtype`` (``pkg/msg/Name``) if installed, else None."""
-    package, name = _split_type(msgtype)
-    for d in msg_search_dirs(package):
-        path = d / f'{name}.msg'
-        if path.is_file():
-            return path.read_text(encoding='utf-8')
-    return None
-
-
-def _ensure_type(typestore: Typestore, msgtype: str, _seen: set[str] | None = None) -> None:
-    """Register ``msgtype`` (and unknown field types) in ``typestore`` from ``.msg`` files."""
-    package, name = _split_type(msgtype)
-    full = f'{package}/msg/{name}'
-    if full in typestore.fielddefs:
-        return
-    seen = set() if _seen is None else _seen
-    if full in seen:
-        return
-    seen.add(full)
-    text = find_message_definition(full)
-    if text is None:
-        msg = (f'no message definition found for {full} (looked in '
-               f'{", ".join(str(d) for d in msg_search_dirs(package))})')
-        raise BagError(msg)
-    try:
-        types = get_types_from_msg(text, full)
-    except TypesysError as err:
-        msg = f'cannot parse the definition of {full}: {err}'
-        raise BagError(msg) from None
-    for _, fields in types.values():
-        for _, desc in fields:
-            for dep in _field_type_names(desc):
-                if dep not in typestore.fielddefs and dep not in types:
-                    _ensure_type(typestore, dep, seen)
-    typestore.register(types)
-
-
-def _field_type_names(desc: Any) -> list[str]:
-    """Names of the message types a rosbags field description refers to."""
-    names: list[str] = []
-    if isinstance(desc, tuple):
-        for part in desc:
-            if isinstance(part, str) and '/' in part:
-                names.append(part)
-            elif isinstance(part, tuple):
-                names.extend(_field_type_names(part))
-    return names
-
-
-def galvo_typestore(extra_types: Iterable[str] = ()) -> Typestore:
-    """A rosbags typestore: ROS 2 Jazzy's standard types plus ``galvo_sysid_msgs``.
-
-    Args:
-        extra_types: Further ``pkg/msg/Name`` types to register from installed ``.msg``
-            files (their unknown field types too).
-
-    Raises:
-        BagError: A definition cannot be found or parsed.
-    """
-    typestore = get_typestore(Stores.ROS2_JAZZY)
-    for msgtype in (MOVE_SAMPLES, MODAL_PARAMETERS, DRIFT_STATUS, *extra_types):
-        _ensure_type(typestore, msgtype)
-    return typestore
-
-
-def stamp_to_ns(stamp: float) -> int:
-    """Seconds as float -> integer nanoseconds (rounded)."""
-    return round(stamp * 1e9)
-
-
-# --------------------------------------------------------------------------- records
 
 
 @dataclass(frozen=True)
@@ -308,17 +120,8 @@ class BagInfo:
     end: int
 
 
-# --------------------------------------------------------------------------- reading
-
-
-def _one_line(err: BaseException) -> str:
-    text = ' '.join(str(a) for a in err.args) if err.args else type(err).__name__
-    text = ' '.join(text.split())
-    return text.rstrip('.') or type(err).__name__
-
-
 def _explain(err: BaseException) -> str:
-    text = _one_line(err)
+    text = reason(err)
     if 'end magic' in text:  # an mcap file without its footer: cut off, or never closed
         return f'{text} (the mcap file is truncated: copy cut short or recording not closed)'
     if 'malformed' in text or 'not a database' in text:
@@ -335,7 +138,7 @@ def _storage_of(path: Path) -> str:
     return 'sqlite3' if path.suffix == '.db3' else 'mcap'
 
 
-class BagReader:
+class BagReader(BagFile):
     """Read a rosbag2 bag (directory, ``.mcap`` or ``.db3`` file) of galvo topics.
 
     Use as a context manager. Messages are decoded with the definitions stored in the bag;
@@ -349,14 +152,6 @@ class BagReader:
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
         self._reader: AnyReader | None = None
-
-    def __enter__(self) -> BagReader:
-        self.open()
-        return self
-
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        self.close()
 
     def open(self) -> None:
         """Open the bag (see the class for the errors)."""
@@ -442,7 +237,7 @@ class BagReader:
             except StopIteration:
                 return
             except Exception as err:  # any failure inside the storage reader = damaged bag
-                msg = f'bag {self.path} is truncated or corrupt: {_one_line(err)}'
+                msg = f'bag {self.path} is truncated or corrupt: {reason(err)}'
                 raise CorruptBagError(msg) from None
             conn, timestamp, data = item
             yield RawMessage(conn.topic, conn.msgtype, timestamp, bytes(data))
@@ -456,7 +251,7 @@ class BagReader:
         try:
             return self.reader.deserialize(raw.data, raw.msgtype)
         except Exception as err:  # rosbags raises assorted error types on bad bytes
-            msg = f'undecodable {raw.msgtype} message on {raw.topic}: {_one_line(err)}'
+            msg = f'undecodable {raw.msgtype} message on {raw.topic}: {reason(err)}'
             raise CorruptBagError(msg) from None
 
     def galvo_topics(self, *, namespace: str | None = None) -> tuple[str, str]:
@@ -523,7 +318,7 @@ class BagReader:
                 msg = self.deserialize(raw)
                 half = move_half_from_msg(msg, signal=signals[raw.topic])
             except GalvoSysidError as err:
-                yield SetAside(raw.topic, raw.timestamp * 1e-9, _one_line(err))
+                yield SetAside(raw.topic, raw.timestamp * 1e-9, reason(err))
                 continue
             yield half
 
@@ -533,142 +328,4 @@ def _transient_local(conn: Connection) -> bool:
     if not isinstance(ext, ConnectionExtRosbag2):
         return False
     return any(q.durability == QosDurability.TRANSIENT_LOCAL for q in ext.offered_qos_profiles)
-
-
-# --------------------------------------------------------------------------- writing
-
-_ZERO = QosTime(0, 0)
-_INFINITE = QosTime(2147483647, 4294967295)
-
-
-def _qos(*, reliable: bool, transient_local: bool, depth: int) -> Qos:
-    return Qos(
-        history=QosHistory.KEEP_LAST,
-        depth=depth,
-        reliability=QosReliability.RELIABLE if reliable else QosReliability.BEST_EFFORT,
-        durability=QosDurability.TRANSIENT_LOCAL if transient_local else QosDurability.VOLATILE,
-        deadline=_INFINITE,
-        lifespan=_INFINITE,
-        liveliness=QosLiveliness.AUTOMATIC,
-        liveliness_lease_duration=_INFINITE,
-        avoid_ros_namespace_conventions=False,
-    )
-
-
-class BagWriter:
-    """Write a new rosbag2 bag with message definitions stored.
-
-    Args:
-        path: Bag directory to create (must not exist).
-        storage: ``'mcap'`` (default, zstd-compressed chunks when ``compress``) or
-            ``'sqlite3'``.
-        compress: Compress mcap chunks with zstd (readable by ``ros2 bag`` and rosbags).
-
-    Raises:
-        BagExistsError: ``path`` exists.
-        BagError: Unknown storage.
-    """
-
-    def __init__(self, path: str | os.PathLike[str], *,
-                 storage: Literal['mcap', 'sqlite3'] | str = 'mcap',
-                 compress: bool = True) -> None:
-        self.path = Path(path)
-        if storage not in {'mcap', 'sqlite3'}:
-            msg = f'unknown storage {storage!r}: use mcap or sqlite3'
-            raise BagError(msg)
-        if self.path.exists():
-            msg = f'output bag exists already, not overwriting: {self.path}'
-            raise BagExistsError(msg)
-        self.storage = storage
-        plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
-        self._writer = Writer(self.path, version=Writer.VERSION_LATEST, storage_plugin=plugin)
-        if storage == 'mcap' and compress:
-            self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-        self.typestore = galvo_typestore()
-        self._connections: dict[str, Connection] = {}
-        self._types: dict[str, str] = {}
-        self._open = False
-        self.count = 0
-
-    def __enter__(self) -> BagWriter:
-        self.open()
-        return self
-
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        self.close()
-
-    def open(self) -> None:
-        """Create the bag directory and storage file."""
-        try:
-            self._writer.open()
-        except WriterError as err:
-            raise BagExistsError(_one_line(err)) from None
-        self._open = True
-
-    def close(self) -> None:
-        """Write the index and ``metadata.yaml`` (idempotent)."""
-        if self._open:
-            self._open = False
-            self._writer.close()
-
-    @property
-    def topics(self) -> dict[str, str]:
-        """Topics added so far and their types."""
-        return dict(self._types)
-
-    def add_topic(self, topic: str, msgtype: str, *, reliable: bool = True,
-                  transient_local: bool = False, depth: int = 10) -> None:
-        """Add a topic; its type's definition is stored in the bag.
-
-        Args:
-            topic: Topic name.
-            msgtype: ``pkg/msg/Name``; must be a standard Jazzy type, a ``galvo_sysid_msgs``
-                type, or have its ``.msg`` installed under ``<prefix>/share``.
-            reliable: The offered QoS was reliable (stored in the metadata for players).
-            transient_local: The offered QoS was transient local.
-            depth: The offered history depth.
-
-        Raises:
-            BagError: Topic added twice, or the type's definition is not found.
-        """
-        package, name = _split_type(msgtype)
-        msgtype = f'{package}/msg/{name}'
-        if topic in self._connections:
-            msg = f'topic {topic} added twice'
-            raise BagError(msg)
-        _ensure_type(self.typestore, msgtype)
-        qos = _qos(reliable=reliable, transient_local=transient_local, depth=depth)
-        self._connections[topic] = self._writer.add_connection(
-            topic, msgtype, typestore=self.typestore, offered_qos_profiles=[qos])
-        self._types[topic] = msgtype
-
-    def write_raw(self, topic: str, timestamp: int, data: bytes | memoryview) -> None:
-        """Store already serialized CDR bytes at log time ``timestamp`` [ns]."""
-        conn = self._connections.get(topic)
-        if conn is None:
-            msg = f'topic {topic} was not added to bag {self.path}'
-            raise BagError(msg)
-        self._writer.write(conn, timestamp, data)
-        self.count += 1
-
-    def write(self, topic: str, timestamp: int, message: object) -> None:
-        """Serialize a rosbags message object (see :attr:`typestore`) and store it."""
-        data = self.typestore.serialize_cdr(message, self._types[topic])
-        self.write_raw(topic, timestamp, data)
-
-    def move_samples(self, *, stamp: float, move_id: int, target_angle: float,
-                     sample_period: float, data: ArrayLike, frame_id: str = '') -> object:
-        """Build a rosbags ``MoveSamples`` message (header stamp from ``stamp`` [s])."""
-        import numpy as np
-
-        types = self.typestore.types
-        sec, nanosec = divmod(stamp_to_ns(stamp), 1_000_000_000)
-        header = types['std_msgs/msg/Header'](
-            stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec),
-            frame_id=frame_id)
-        return types[MOVE_SAMPLES](header=header, move_id=move_id,
-                                   target_angle=float(target_angle),
-                                   sample_period=float(sample_period),
-                                   data=np.ascontiguousarray(data, dtype=np.float64))
 

@@ -1,0 +1,190 @@
+"""What every ``galvo-sysid`` subcommand shares: error text, help layout, argument types, output.
+
+Imports nothing heavy (no numpy): :mod:`galvo_sysid.cli.main` imports it before it limits the
+BLAS threads, and every subcommand's parser is built from it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from typing import TYPE_CHECKING, Any, TextIO
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+__all__ = [
+    'BAG_HELP',
+    'PSI',
+    'HelpFormatter',
+    'Progress',
+    'add_subcommand',
+    'finite_float',
+    'json_safe',
+    'nonnegative_int',
+    'one_line',
+    'parse_angle',
+    'positive',
+]
+
+PSI = 0.3
+"""The paper's unit of target angle [deg]: ``'2psi'`` means 0.6 deg."""
+
+BAG_HELP = 'rosbag2 bag: directory, .mcap or .db3 file'
+"""Help text of a subcommand's bag argument."""
+
+
+def one_line(err: BaseException) -> str:
+    """An error's message on one line (its type's name when it has none)."""
+    return ' '.join(str(err).split()) or type(err).__name__
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Keep the hand-made line breaks of descriptions; show defaults that say something.
+
+    A default is shown as ``(default: ...)`` after an option's help unless it is None, False
+    or empty, or the help names it itself with ``%(default)s``.
+    """
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ''
+        default = action.default
+        if (default is None or default is False or default == [] or default is argparse.SUPPRESS
+                or '%(default)' in text or not action.option_strings):
+            return text
+        return f'{text} (default: %(default)s)'
+
+
+def add_subcommand(subparsers: Any, name: str, *, help: str, description: str,
+                   epilog: str | None = None) -> argparse.ArgumentParser:
+    """Add subcommand ``name`` to an argparse subparsers object, with :class:`HelpFormatter`.
+
+    Args:
+        subparsers: What ``ArgumentParser.add_subparsers`` returned.
+        name: The subcommand.
+        help: One line for the main ``--help``.
+        description: The subcommand's ``--help`` text (line breaks kept).
+        epilog: Text after the options (examples).
+    """
+    parser: argparse.ArgumentParser = subparsers.add_parser(
+        name, formatter_class=HelpFormatter, help=help, description=description, epilog=epilog)
+    return parser
+
+
+# --------------------------------------------------------------------------- argument types
+
+
+def parse_angle(text: str) -> float:
+    """Parse a target angle in degrees; ``'2psi'`` or ``'0.5psi'`` means multiples of 0.3 deg.
+
+    Raises:
+        argparse.ArgumentTypeError: Not a finite number.
+    """
+    raw = text.strip().lower()
+    scale = 1.0
+    if raw.endswith('psi'):
+        raw, scale = raw[:-3] or '1', PSI
+    try:
+        value = float(raw) * scale
+    except ValueError:
+        msg = f'not an angle: {text!r} (degrees, or e.g. 2psi = 0.6 deg)'
+        raise argparse.ArgumentTypeError(msg) from None
+    if not math.isfinite(value) or value == 0:
+        msg = f'angle must be finite and non-zero: {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return round(value, 12)
+
+
+def positive(kind: type[int] | type[float]) -> Callable[[str], Any]:
+    """An argument type: a number of ``kind`` (``int`` or ``float``) above 0.
+
+    ``'inf'`` passes as a float (e.g. ``replay --rate inf``: as fast as possible).
+    """
+    def parse(text: str) -> float:
+        return _number(text, kind, 'a number', '> 0', lambda value: value > 0)
+    parse.__name__ = kind.__name__
+    return parse
+
+
+def nonnegative_int(text: str) -> int:
+    """An argument type: a whole number, 0 or more."""
+    return int(_number(text, int, 'a whole number', '>= 0', lambda value: value >= 0))
+
+
+def finite_float(text: str) -> float:
+    """An argument type: a finite number (no NaN or infinity)."""
+    return _number(text, float, 'a number', 'finite', math.isfinite)
+
+
+def _number(text: str, kind: type[int] | type[float], what: str, need: str,
+            valid: Callable[[float], bool]) -> float:
+    """``kind(text)`` if ``valid``; else the usage error ``not <what>`` or ``must be <need>``."""
+    try:
+        value = kind(text)
+    except ValueError:
+        msg = f'not {what}: {text!r}'
+        raise argparse.ArgumentTypeError(msg) from None
+    if not valid(value):
+        msg = f'must be {need}: {text!r}'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+# --------------------------------------------------------------------------- output
+
+
+def json_safe(value: Any) -> Any:
+    """Replace NaN/Inf by None (in dicts, lists and tuples too) so the output is strict JSON."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    return value
+
+
+class Progress:
+    """A one-line progress bar on a TTY, drawn only when a run takes a while.
+
+    Call it with ``(done, total)`` messages; :meth:`close` clears the line.
+
+    Args:
+        stream: Where the bar goes (drawn only if it is a terminal).
+        label: Word before the bar (the subcommand).
+        enabled: False draws nothing (e.g. with ``--json``).
+        delay: Seconds before the first drawing (a short run draws nothing).
+    """
+
+    def __init__(self, stream: TextIO, label: str, *, enabled: bool,
+                 delay: float = 0.5) -> None:
+        self.stream = stream
+        self.label = label
+        self.enabled = enabled and stream.isatty()
+        self.delay = delay
+        self.start = time.monotonic()
+        self.last = 0.0
+        self.drawn = False
+
+    def __call__(self, done: int, total: int) -> None:
+        """Redraw the bar for ``done`` of ``total`` messages (at most ten times a second)."""
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if now - self.start < self.delay or (now - self.last < 0.1 and done < total):
+            return
+        self.last = now
+        frac = done / total if total else 1.0
+        width = 30
+        bar = '#' * round(frac * width)
+        self.stream.write(f'\r{self.label} [{bar:<{width}}] {100 * frac:3.0f} % '
+                          f'({done}/{total} messages, {now - self.start:.1f} s)')
+        self.stream.flush()
+        self.drawn = True
+
+    def close(self) -> None:
+        """Clear the bar's line if it was drawn."""
+        if self.drawn:
+            self.stream.write('\r\033[K')
+            self.stream.flush()

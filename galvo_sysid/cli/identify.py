@@ -1,0 +1,260 @@
+"""``galvo-sysid identify``: identify the plant from a bag, offline (no ROS).
+
+Also the readable report it prints (:func:`format_identification`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from typing import TYPE_CHECKING, Any
+
+from galvo_sysid.cli.common import BAG_HELP, Progress, add_subcommand, json_safe, positive
+
+if TYPE_CHECKING:
+    from galvo_sysid.field.offline import BagIdentification
+
+__all__ = ['add_parser', 'cpus', 'format_identification', 'run']
+
+_DESCRIPTION = (
+    'Identify the scanner from a bag with the same code as the sysid node (so the\n'
+    'numbers are the same): current and encoder messages are paired by move_id,\n'
+    'grouped by signed target angle into windows of --window-size moves, each window\n'
+    'is fitted (--method) and judged for drift like the watchdog node does. At the\n'
+    'end of the bag, an unfinished window holding at least half a window is fitted\n'
+    'too and marked partial. Moves that cannot be used (NaN, unpaired, duplicate\n'
+    'move_id, wrong length, zero angle, ...) are listed as rejected with the reason;\n'
+    'the rest is used.\n\n'
+    "The scanner is the plant-model file of --model (default: the paper's scanner):\n"
+    'its modes, bands, input dynamics and sample period are what is identified, and\n'
+    'deviations are shown from it. Data that do not match it (another sample period,\n'
+    'a mode outside its band, a residual far above the noise) are said so in one\n'
+    'line: the scanner is another one (galvo-sysid commission makes its model).\n\n'
+    'methods: refined  structured output-error fit of the modal model (default)\n'
+    '         paper-A  the paper: average the moves, fictitious input, ARX(15,15)\n'
+    '         paper-B  the paper: concatenate the moves instead of averaging')
+
+_EPILOG = (
+    'output:\n'
+    '  a table of the windows (deviation of each parameter from the reference [%],\n'
+    '  drift level), the pooled estimate with standard deviations, the rejected moves.\n'
+    '  --json prints one object {"windows": [...], "pooled": {...}, "rejected": [...]}\n'
+    '  whose window fields are named as in ModalParameters, plus "partial" and\n'
+    '  "drift" (level OK/WARN/ERROR/MISMATCH and deviations); "pooled" also says\n'
+    '  "pooling" (joint or inverse-variance), "pooled_windows" and "pooling_note"\n'
+    '  (why the joint fit was not used, else null); "model" names the model file,\n'
+    '  "model_mismatch" why the data do not match it (else null) and\n'
+    '  "mismatched_windows" the windows concerned.\n'
+    '  Exit code 1 when no window was identified (e.g. none matches the model).\n\n'
+    'examples:\n'
+    '  galvo-sysid identify bags/nominal\n'
+    "  galvo-sysid identify bags/drifting --json | jq '.windows[].drift.level'\n"
+    '  galvo-sysid identify run.mcap --method paper-A --plot bode.png\n'
+    '  galvo-sysid identify field2 --model scanner2.yaml\n'
+    '  galvo-sysid identify field1 --sysid-params config/sysid.yaml \\\n'
+    '      --watchdog-params config/watchdog.yaml   # as the deployed nodes are set')
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add the ``identify`` subcommand to an argparse subparsers object."""
+    p = add_subcommand(
+        subparsers, 'identify', help='identify the plant from a bag, offline (no ROS)',
+        description=_DESCRIPTION, epilog=_EPILOG)
+    p.add_argument('bag', help=BAG_HELP)
+    p.add_argument('--json', action='store_true', help='print one JSON object on stdout')
+    p.add_argument('--method', choices=('refined', 'paper-A', 'paper-B'), default=None,
+                   help="identification method (default: the sysid node's, refined)")
+    p.add_argument('--plot', metavar='FILE',
+                   help='also write Bode (identified vs reference) and parameter-trend plots '
+                        '(.png, .pdf or .svg)')
+    p.add_argument('--window-size', type=positive(int), default=None, metavar='N',
+                   help='moves per window (default: the sysid node parameter window_size, '
+                        '100)')
+    p.add_argument('--min-partial', type=positive(int), default=None, metavar='N',
+                   help='smallest unfinished window fitted at the end (default: half a window)')
+    p.add_argument('--namespace', metavar='NS',
+                   help='scanner namespace when the bag holds several (e.g. /left)')
+    p.add_argument('--na', type=positive(int), default=None, metavar='N',
+                   help='ARX order of A[q] (paper pipeline; start of the refined fit); default: '
+                        'the sysid node parameter na, 15')
+    p.add_argument('--nb', type=positive(int), default=None, metavar='N',
+                   help='ARX order of B[q]; default: the sysid node parameter nb, 15')
+    p.add_argument('--model', metavar='FILE', default=None,
+                   help="plant-model file of the scanner (default: the sysid parameter model, "
+                        "else the packaged model of the paper's scanner)")
+    p.add_argument('--sysid-params', metavar='YAML',
+                   help="the sysid node's --params-file (e.g. config/sysid.yaml): model, "
+                        'window and pairing settings, method, na, nb; options given here win')
+    p.add_argument('--watchdog-params', metavar='YAML',
+                   help="the watchdog node's --params-file (e.g. config/watchdog.yaml): "
+                        'reference model (its model; "" = the packaged paper model, as the '
+                        'node) and tolerances of the drift verdicts (default: the reference '
+                        'is the --model)')
+    p.add_argument('--jobs', type=positive(int), default=None, metavar='N',
+                   help='windows fitted in parallel (default: one per CPU); the numbers do '
+                        'not depend on it')
+    p.add_argument('--pooling', choices=('joint', 'inverse-variance'), default=None,
+                   help='pooled estimate: one joint fit to all windows (default for refined; '
+                        'sharpest) or the inverse-variance combination of the windows '
+                        '(default and only choice for the paper methods)')
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """Identify the bag; print the table (or ``--json``); return the exit code.
+
+    Raises:
+        GalvoSysidError: Bad bag, model or parameter file (the caller prints one line).
+    """
+    from galvo_sysid.field.offline import (
+        identify_bag,
+        load_node_parameters,
+        monitor_from_parameters,
+    )
+
+    if args.plot:  # say a bad file name before the work, not after
+        from galvo_sysid.field.plots import check_plot_path
+
+        check_plot_path(args.plot)
+    from galvo_sysid.model import load_model
+    from galvo_sysid.monitor.online import mismatch_message
+
+    sysid: dict[str, Any] = {'window_size': 100, 'method': 'refined', 'na': 15, 'nb': 15,
+                             'model': ''}
+    if args.sysid_params:
+        sysid.update(load_node_parameters(args.sysid_params, 'sysid'))
+    for name in ('window_size', 'method', 'na', 'nb', 'model'):
+        if getattr(args, name) is not None:
+            sysid[name] = getattr(args, name)
+    model_path = sysid['model'] or ''
+    if not isinstance(model_path, str):
+        from galvo_sysid.errors import ConfigurationError
+
+        msg = f'sysid parameter model must be a file name, got {model_path!r}'
+        raise ConfigurationError(msg)
+    model = load_model(model_path or None)
+    monitor = None
+    if args.watchdog_params:
+        monitor = monitor_from_parameters(load_node_parameters(args.watchdog_params,
+                                                               'watchdog'))
+    progress = Progress(sys.stderr, 'identify', enabled=not args.json)
+    try:
+        found = identify_bag(args.bag, method=str(sysid['method']),
+                             window_size=int(sysid['window_size']),
+                             min_partial=args.min_partial, namespace=args.namespace,
+                             monitor=monitor, na=int(sysid['na']), nb=int(sysid['nb']),
+                             windower=sysid, jobs=args.jobs or cpus(),
+                             pooling=args.pooling, model=model, model_path=model_path,
+                             progress=progress)
+    finally:
+        progress.close()
+    if args.json:
+        json.dump(json_safe(found.to_dict()), sys.stdout, allow_nan=False)
+        sys.stdout.write('\n')
+    else:
+        sys.stdout.write(format_identification(found))
+    if args.plot:
+        from galvo_sysid.field.plots import save_identification_plot
+
+        path = save_identification_plot(found, args.plot)
+        print(f'identify: plot written to {path}', file=sys.stderr)
+    if found.model_mismatch is not None:  # one plain line: another scanner, not drift
+        print(mismatch_message(found.model_mismatch, model_path=found.model), file=sys.stderr)
+        return 0 if found.windows else 1
+    if not found.windows:
+        print(f'identify: no window identified in {args.bag} (need at least '
+              f'{args.min_partial or found.window_size // 2} usable moves of one target angle)',
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+def cpus() -> int:
+    """The CPUs this process may run on (the default of ``--jobs``)."""
+    import os
+
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+
+def format_identification(found: BagIdentification) -> str:
+    """The readable report ``identify`` prints without ``--json``."""
+    from galvo_sysid.model import REFERENCE_MODEL, model_label
+
+    reference = found.reference if found.reference is not None else REFERENCE_MODEL
+    ref = reference.parameters()
+    ref_name = found.reference_name or model_label(None)
+    names = list(ref)
+    info = found.info
+    span = (info.end - info.start) * 1e-9
+    lines = [f'bag: {info.path} ({info.storage}), {found.moves:g} moves, {span:.2f} s; '
+             f'method {found.method}, windows of {found.window_size} moves; model '
+             f'{found.model_name}',
+             '']
+
+    def dev(values: dict[str, float], name: str) -> float:
+        return 100 * (values.get(name, math.nan) - ref[name]) / ref[name]
+
+    if found.windows:
+        lines.append(f'deviation from the reference model {ref_name} [%]:')
+        head = f'{"win":>4} {"angle":>8} {"moves":>5} {"fit%":>6} ' + ' '.join(
+            f'{n:>8}' for n in names) + '  drift'
+        lines.append(head)
+        unresolved_seen = False
+        for w in found.windows:
+            values = w.result.model.parameters()
+            unresolved = {f'{p}{i}' for i, r in enumerate(w.result.resolved, start=1)
+                          if not r for p in ('k', 'omega_', 'zeta_')}
+            unresolved_seen |= bool(unresolved & set(names))
+            devs = ' '.join(f'{"unres.":>8}' if n in unresolved else f'{dev(values, n):8.3f}'
+                            for n in names)
+            mark = '*' if w.partial else ' '
+            lines.append(f'{w.window_index:>4} {w.target_angle:+8.3f} {w.result.moves:>4}{mark} '
+                         f'{w.result.fit_percent:6.2f} {devs}  {w.drift.level_name}')
+        if any(w.partial for w in found.windows):
+            lines.append('  * partial window (end of bag)')
+        if unresolved_seen:
+            lines.append("  unres.: a mode the window's data do not resolve (not judged)")
+        lines.append('')
+    if found.mismatched:
+        lines.append(f'{len(found.mismatched)} window(s) do not match the model '
+                     f'{found.model_name} (not identified):')
+        for m in found.mismatched[:10]:
+            lines.append(f'  window {m.window_index} ({m.target_angle:+g} deg, {m.moves} '
+                         f'moves): {m.reason}')
+        if len(found.mismatched) > 10:
+            lines.append(f'  ... and {len(found.mismatched) - 10} more (see --json)')
+        lines.append('')
+    if found.pooled is not None:
+        pooled = found.pooled
+        values = pooled.model.parameters()
+        stds = pooled.std_by_name()
+        how = 'one joint fit' if found.pooling == 'joint' else 'inverse-variance combination'
+        lines.append(f'pooled over {found.pooled_windows} window(s), {pooled.moves} moves '
+                     f'({how}):')
+        if found.pooling_note:
+            lines.append(f'  note: {found.pooling_note}')
+        for n in names:
+            lines.append(f'  {n:<8} {values.get(n, math.nan):12.6g} +- '
+                         f'{stds.get(n, math.nan):<10.3g} ({dev(values, n):+.3f} % vs '
+                         f'reference {ref[n]:.6g})')
+        lines.append(f'  input delay {pooled.input_delay * 1e6:.2f} us, '
+                     f'amplifier lag {pooled.lag_time_constant * 1e6:.2f} us')
+        lines.append('')
+    lines.append(f'rejected: {len(found.rejected)} move(s) or message(s) set aside')
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for r in found.rejected:
+        groups.setdefault(r['reason'], []).append(r)
+    for reason, items in list(groups.items())[:20]:
+        ids = [str(r['move_id']) for r in items if r['move_id'] is not None]
+        where = f'moves {", ".join(ids[:5])}' + (f', ... {ids[-1]}' if len(ids) > 5 else '') \
+            if len(ids) > 1 else f'move {ids[0]}' if ids else items[0].get('topic', 'message')
+        lines.append(f'  {len(items)} x {reason} ({where})')
+    if len(groups) > 20:
+        lines.append(f'  ... and {len(groups) - 20} more reasons (see --json)')
+    return '\n'.join(lines) + '\n'

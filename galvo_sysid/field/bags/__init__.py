@@ -1,0 +1,66 @@
+"""Reading and writing rosbag2 bags of galvo topics with rosbags (no ROS install needed).
+
+Bags are standard rosbag2 recordings (mcap by default, sqlite3 on request) that carry the
+message definitions of every topic, so any rosbag2 reader (``ros2 bag``, rosbags'
+``AnyReader``, Foxglove) decodes them without having ``galvo_sysid_msgs`` installed.
+
+- :mod:`~galvo_sysid.field.bags.reader`: :class:`BagReader`, :class:`BagInfo`,
+  :class:`SetAside` (a message that could not be used);
+- :mod:`~galvo_sysid.field.bags.writer`: :class:`BagWriter`;
+- :mod:`~galvo_sysid.field.bags.definitions`: topic and type names, the ``.msg`` definitions
+  and the rosbags typestore;
+- :mod:`~galvo_sysid.field.bags.errors`: :class:`BagError` (an
+  :class:`~galvo_sysid.errors.InvalidDataError`) and its subclasses, with one-line messages.
+"""
+
+from galvo_sysid.field.bags.definitions import (
+    CURRENT_TOPIC,
+    DRIFT_STATUS,
+    DRIFT_TOPIC,
+    ENCODER_TOPIC,
+    GALVO_TOPICS,
+    MODAL_PARAMETERS,
+    MODAL_PARAMETERS_TOPIC,
+    MOVE_SAMPLES,
+    find_message_definition,
+    galvo_typestore,
+    msg_search_dirs,
+    stamp_to_ns,
+)
+from galvo_sysid.field.bags.errors import (
+    BagError,
+    BagExistsError,
+    BagNotFoundError,
+    CorruptBagError,
+    NoGalvoTopicsError,
+    WrongTopicTypeError,
+)
+from galvo_sysid.field.bags.reader import BagInfo, BagReader, RawMessage, SetAside, TopicInfo
+from galvo_sysid.field.bags.writer import BagWriter
+
+__all__ = [
+    'CURRENT_TOPIC',
+    'DRIFT_STATUS',
+    'DRIFT_TOPIC',
+    'ENCODER_TOPIC',
+    'GALVO_TOPICS',
+    'MODAL_PARAMETERS',
+    'MODAL_PARAMETERS_TOPIC',
+    'MOVE_SAMPLES',
+    'BagError',
+    'BagExistsError',
+    'BagInfo',
+    'BagNotFoundError',
+    'BagReader',
+    'BagWriter',
+    'CorruptBagError',
+    'NoGalvoTopicsError',
+    'RawMessage',
+    'SetAside',
+    'TopicInfo',
+    'WrongTopicTypeError',
+    'find_message_definition',
+    'galvo_typestore',
+    'msg_search_dirs',
+    'stamp_to_ns',
+]

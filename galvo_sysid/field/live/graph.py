@@ -1,0 +1,133 @@
+"""What the live tools share: rclpy message classes, a node, QoS that matches publishers, stop.
+
+Each tool runs one short-lived rclpy node (:func:`ros_node`) and stops cleanly on
+SIGINT/SIGTERM (:class:`Stop`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import signal
+from typing import TYPE_CHECKING, Any, TextIO
+
+from galvo_sysid.errors import ConfigurationError
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+    from types import FrameType
+
+    from rclpy.node import Node
+
+__all__ = [
+    'Stop',
+    'absolute',
+    'message_class',
+    'publisher_qos',
+    'ros_node',
+    'say',
+    'subscription_qos',
+]
+
+
+def message_class(msgtype: str) -> Any:
+    """The rclpy message class of ``pkg/msg/Name`` (imports ``pkg.msg``).
+
+    Raises:
+        ConfigurationError: The type's Python package is not installed.
+    """
+    parts = msgtype.split('/')
+    if len(parts) == 2:  # 'pkg/Name'
+        parts = [parts[0], 'msg', parts[1]]
+    if len(parts) != 3 or parts[1] != 'msg':  # 'pkg/msg/Name'
+        msg = f'not a message type: {msgtype!r}'
+        raise ConfigurationError(msg)
+    try:
+        module = importlib.import_module(f'{parts[0]}.msg')
+        return getattr(module, parts[2])
+    except (ImportError, AttributeError):
+        msg = f'message type {msgtype} is not installed (no Python module {parts[0]}.msg)'
+        raise ConfigurationError(msg) from None
+
+
+
+def absolute(topic: str) -> str:
+    """A topic name taken from ``/`` (``'galvo/drift'`` -> ``'/galvo/drift'``)."""
+    return topic if topic.startswith('/') else '/' + topic
+
+
+class Stop:
+    """SIGINT/SIGTERM set a flag that the spin loops check (clean bag close)."""
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._old: dict[int, Any] = {}
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        self.requested = True
+
+    def is_set(self) -> bool:
+        """Whether a stop was requested."""
+        return self.requested
+
+    def __enter__(self) -> Stop:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+
+@contextlib.contextmanager
+def ros_node(name: str) -> Iterator[Node]:
+    """A node of a freshly initialised rclpy, shut down at the end; no rclpy signal handlers."""
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    try:
+        node = rclpy.create_node(name, start_parameter_services=False)
+        yield node
+    finally:
+        if node is not None:
+            node.destroy_node()
+        with contextlib.suppress(Exception):
+            rclpy.shutdown()
+
+
+def publisher_qos(node: Node, topic: str) -> tuple[bool, bool] | None:
+    """(reliable, transient local) that match every publisher of a live topic.
+
+    A subscription asking for more than a publisher offers does not match it, so reliable
+    and transient local are asked for only when all publishers offer them (then a late
+    subscriber still gets a transient-local topic's last messages). None while the topic
+    has no publisher (it may be known from a subscriber only).
+    """
+    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+
+    infos = node.get_publishers_info_by_topic(topic)
+    if not infos:
+        return None
+    reliable = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+    transient = all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+    return reliable, transient
+
+
+def subscription_qos(*, reliable: bool, transient_local: bool, depth: int) -> Any:
+    """A keep-last subscription QoS (see :func:`publisher_qos` for what matches)."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=(DurabilityPolicy.TRANSIENT_LOCAL if transient_local
+                    else DurabilityPolicy.VOLATILE))
+
+
+def say(stream: TextIO, text: str) -> None:
+    """Write one progress line and flush it (the tools run for long)."""
+    stream.write(text + '\n')
+    stream.flush()

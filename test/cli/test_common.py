@@ -1,0 +1,102 @@
+"""The pieces every subcommand shares (galvo_sysid.cli.common), called directly."""
+
+from __future__ import annotations
+
+import argparse
+import io
+import math
+
+import pytest
+
+from galvo_sysid.cli.common import (
+    HelpFormatter,
+    Progress,
+    add_subcommand,
+    finite_float,
+    json_safe,
+    nonnegative_int,
+    one_line,
+    parse_angle,
+    positive,
+)
+
+
+def test_progress_bar_only_on_a_terminal_and_only_when_slow() -> None:
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    quiet = io.StringIO()
+    bar = Progress(quiet, 'identify', enabled=True, delay=0.0)
+    bar(5, 10)
+    assert quiet.getvalue() == ''  # not a terminal
+    tty = Tty()
+    bar = Progress(tty, 'identify', enabled=True, delay=0.0)
+    bar(10, 10)
+    assert '100 %' in tty.getvalue()
+    assert '(10/10 messages' in tty.getvalue()
+    bar.close()
+    assert tty.getvalue().endswith('\r\033[K')
+    fast = Tty()
+    bar = Progress(fast, 'identify', enabled=True, delay=60.0)
+    bar(10, 10)
+    bar.close()
+    assert fast.getvalue() == ''  # a short run draws nothing
+    off = Tty()
+    Progress(off, 'identify', enabled=False, delay=0.0)(1, 2)  # --json
+    assert off.getvalue() == ''
+
+
+def test_angles_in_degrees_or_psi() -> None:
+    assert parse_angle('0.6') == 0.6
+    assert parse_angle('2psi') == 0.6
+    assert parse_angle(' -1PSI ') == -0.3
+    assert parse_angle('psi') == 0.3
+    for bad in ('zero', '0', 'nan', 'inf', '0psi'):
+        with pytest.raises(argparse.ArgumentTypeError):
+            parse_angle(bad)
+
+
+def test_number_argument_types_say_what_is_wrong() -> None:
+    assert positive(int)('3') == 3
+    assert isinstance(positive(int)('3'), int)
+    assert positive(float)('inf') == math.inf  # replay --rate inf
+    assert nonnegative_int('0') == 0
+    assert finite_float('-2.5') == -2.5
+    cases = [(positive(int), '0', 'must be > 0'), (positive(int), '1.5', 'not a number'),
+             (positive(float), 'nan', 'must be > 0'), (nonnegative_int, '-1', 'must be >= 0'),
+             (nonnegative_int, 'x', 'not a whole number'), (finite_float, 'inf', 'must be finite'),
+             (finite_float, 'nan', 'must be finite'), (finite_float, 'x', 'not a number')]
+    for parse, text, message in cases:
+        with pytest.raises(argparse.ArgumentTypeError, match=message):
+            parse(text)
+
+
+def test_json_safe_makes_strict_json() -> None:
+    value = {'a': math.nan, 'b': [1.0, math.inf, (2, -math.inf)], 'c': 'x', 'd': None}
+    assert json_safe(value) == {'a': None, 'b': [1.0, None, [2, None]], 'c': 'x', 'd': None}
+
+
+def test_one_line() -> None:
+    assert one_line(ValueError('bad\n  value\tthere')) == 'bad value there'
+    assert one_line(KeyboardInterrupt()) == 'KeyboardInterrupt'
+
+
+def test_help_shows_only_defaults_that_say_something() -> None:
+    parser = argparse.ArgumentParser(prog='x')
+    sub = parser.add_subparsers()
+    p = add_subcommand(sub, 'cmd', help='a command', description='line one\nline two')
+    assert p.formatter_class is HelpFormatter
+    p.add_argument('bag', help='the bag')
+    p.add_argument('--n', type=int, default=5, help='how many')
+    p.add_argument('--m', type=int, default=7, help='how many (default: %(default)s, or so)')
+    p.add_argument('--name', default=None, help='a name')
+    p.add_argument('--flag', action='store_true', help='a flag')
+    p.add_argument('--items', action='append', default=[], help='items')
+    text = ' '.join(p.format_help().split())
+    assert 'line one\nline two' in p.format_help()  # the description's line breaks are kept
+    assert 'how many (default: 5)' in text
+    assert 'how many (default: 7, or so)' in text
+    assert '(default: None)' not in text
+    assert '(default: False)' not in text
+    assert '(default: [])' not in text
