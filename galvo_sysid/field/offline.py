@@ -29,17 +29,14 @@ and the result says plainly that the data do not match the model
 from __future__ import annotations
 
 import collections
-import concurrent.futures
-import contextlib
 import functools
 import math
-import multiprocessing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from galvo_sysid.errors import ConfigurationError, GalvoSysidError, ModelMismatchError
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError
 from galvo_sysid.field.bags import BagInfo, BagReader, SetAside
 from galvo_sysid.model import model_label
 from galvo_sysid.monitor.drift import monitor_from_parameters
@@ -48,12 +45,12 @@ from galvo_sysid.monitor.pairing import WINDOWER_PARAMETERS
 if TYPE_CHECKING:
     import os
     from collections.abc import Callable
-    from concurrent.futures import Future
 
-    from galvo_sysid.ident.identify import IdentificationResult
+    from galvo_sysid.ident.result import IdentificationResult
     from galvo_sysid.model import ModalModel, PlantModel
     from galvo_sysid.monitor.drift import DriftMonitor, DriftVerdict
     from galvo_sysid.monitor.pairing import Rejection, Window
+    from galvo_sysid.monitor.scheduler import FitOutcome
 
 __all__ = [
     'JOINT_WINDOWS',
@@ -294,9 +291,11 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
         windower: Further :class:`~galvo_sysid.monitor.pairing.MoveWindower` settings, as the
             sysid node's parameters of :data:`WINDOWER_PARAMETERS` (``window_size`` here is
             overridden by the argument).
-        jobs: Windows fitted in parallel by this many forked processes (1: in this process).
-            The results do not depend on it: each window's fit is the same function call,
-            and the drift monitor still sees the windows in order.
+        jobs: Windows fitted in parallel by this many forked processes (1: on one thread of
+            this process), by :class:`~galvo_sysid.monitor.scheduler.WindowScheduler`, the
+            sysid node's. The results do not depend on it: each window's fit is the same
+            function call, and the outcomes come back in window order (the drift monitor
+            judges the windows in order, the lists keep their order).
         pooling: ``'joint'`` (default for ``'refined'``) or ``'inverse-variance'`` (default,
             and the only choice, for the paper methods); see the module docs.
         joint_windows: Windows held for the joint fit at most (memory): beyond, the oldest
@@ -312,8 +311,8 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
     """
     from galvo_sysid.model import PAPER_MODEL
     from galvo_sysid.monitor.drift import DriftMonitor
-    from galvo_sysid.monitor.online import fit_window
     from galvo_sysid.monitor.pairing import MoveWindower
+    from galvo_sysid.monitor.scheduler import WindowScheduler, fit_window
 
     plant = PAPER_MODEL if model is None else model
 
@@ -348,48 +347,47 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
     # exactly the sysid node's fit function (nodes/sysid_node.py: SysidNode._fit_function)
     fit = functools.partial(fit_window, method=method, model=plant,
                             options={'na': int(na), 'nb': int(nb)})
-    pending: collections.deque[tuple[Window, Future[IdentificationResult] | None]] = \
-        collections.deque()
     windows: list[WindowResult] = []
+    # where each window's set-aside moves go in `rejected`: where they went when each window
+    # was fitted as soon as it completed (so the list does not depend on the timing)
+    marks: dict[int, int] = {}
+    late: list[tuple[int, list[dict[str, Any]]]] = []
 
-    def drain(limit: int) -> None:
-        """Finish the oldest windows, in order, until at most ``limit`` are in flight."""
-        while len(pending) > limit:
-            window, future = pending.popleft()
-            try:
-                result = fit(window) if future is None else future.result()
-            except ModelMismatchError as err:  # said plainly: the scanner is another one
-                why = _one_line(err)
+    def handle(outcome: FitOutcome) -> None:
+        """Judge one window's outcome (called in window order)."""
+        window = outcome.window
+        err = outcome.exception
+        if outcome.result is None:
+            if outcome.mismatch:  # said plainly: the scanner is another one
+                why = _one_line(err) if err is not None else outcome.error or ''
                 mismatched.append(MismatchedWindow(window.index, window.target_angle,
                                                    window.moves, why))
                 reason = f'window {window.index} does not match the model: {why}'
-                rejected.extend({'move_id': mid, 'target_angle': window.target_angle,
-                                 'stamp': None, 'reason': reason} for mid in window.move_ids)
-                continue
-            except Exception as err:  # like the sysid node: a failed fit loses its window only
-                text = _one_line(err) if isinstance(err, GalvoSysidError) else \
-                    f'unexpected {type(err).__name__}: {_one_line(err)}'
+            else:  # like the sysid node: a failed fit loses its window only
+                text = _failure(err, outcome.error)
                 reason = f'window {window.index} not identified: {text}'
-                rejected.extend({'move_id': mid, 'target_angle': window.target_angle,
-                                 'stamp': None, 'reason': reason} for mid in window.move_ids)
-                continue
-            verdict = judge.assess(result, window_index=window.index)
-            windows.append(WindowResult(window.index, window.target_angle, window.partial,
-                                        window.first_stamp, window.last_stamp, result, verdict))
-            if pooling == 'joint':
-                _keep(kept, window, limit=int(joint_windows))
+            late.append((marks.pop(window.index), [
+                {'move_id': mid, 'target_angle': window.target_angle, 'stamp': None,
+                 'reason': reason} for mid in window.move_ids]))
+            return
+        marks.pop(window.index)
+        verdict = judge.assess(outcome.result, window_index=window.index)
+        windows.append(WindowResult(window.index, window.target_angle, window.partial,
+                                    window.first_stamp, window.last_stamp, outcome.result,
+                                    verdict))
+        if pooling == 'joint':
+            _keep(kept, window, limit=int(joint_windows))
 
-    with contextlib.ExitStack() as stack:
-        pool = None
-        if int(jobs) > 1:
-            # fork: the children inherit the imported numerics (no ROS in this process)
-            pool = stack.enter_context(concurrent.futures.ProcessPoolExecutor(
-                max_workers=int(jobs), mp_context=multiprocessing.get_context('fork')))
-        in_flight = 2 * int(jobs) if pool is not None else 0
+    # the children are forked: they inherit the imported numerics (no ROS in this process)
+    with WindowScheduler(fit, processes=int(jobs) if int(jobs) > 1 else 0,
+                         queue_size=int(jobs), when_full='wait', ordered=True,
+                         start_method='fork', warm_up=False) as scheduler:
 
         def submit(window: Window) -> None:
-            pending.append((window, None if pool is None else pool.submit(fit, window)))
-            drain(in_flight)
+            marks[window.index] = len(rejected)
+            scheduler.submit(window)
+            for outcome in scheduler.take():
+                handle(outcome)
 
         with BagReader(bag) as reader:
             current, encoder = reader.galvo_topics(namespace=namespace)
@@ -407,7 +405,10 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
         for window in pairer.flush(min_moves=min_moves):
             submit(window)
         rejected.extend(rejection_to_dict(r) for r in pairer.pop_rejections())
-        drain(0)
+        scheduler.close(timeout=None)
+        for outcome in scheduler.take():
+            handle(outcome)
+    rejected = _insert(rejected, late)
     pooled, used, note = _pooled([w.result for w in windows], kept, pooling=pooling,
                                  model=plant)
     why = mismatched[0].reason if mismatched else pairer.period_mismatch
@@ -419,6 +420,28 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
                              model_mismatch=why, reference=judge.reference,
                              reference_name=judge.reference_name,
                              sample_period=plant.sample_period)
+
+
+def _failure(err: BaseException | None, error: str | None) -> str:
+    """Why a window's fit failed, one line (the exception's type when unexpected)."""
+    if err is None:
+        return error or 'unknown reason'
+    if isinstance(err, GalvoSysidError):
+        return _one_line(err)
+    return f'unexpected {type(err).__name__}: {_one_line(err)}'
+
+
+def _insert(items: list[dict[str, Any]], late: list[tuple[int, list[dict[str, Any]]]],
+            ) -> list[dict[str, Any]]:
+    """``items`` with each ``(position, more)`` of ``late`` (positions ascending) inserted."""
+    out: list[dict[str, Any]] = []
+    start = 0
+    for position, more in late:
+        out.extend(items[start:position])
+        out.extend(more)
+        start = position
+    out.extend(items[start:])
+    return out
 
 
 def _keep(kept: list[Window], window: Window, *, limit: int) -> None:
@@ -441,7 +464,8 @@ def _keep(kept: list[Window], window: Window, *, limit: int) -> None:
 def _pooled(results: list[IdentificationResult], kept: list[Window], *, pooling: str,
             model: PlantModel) -> tuple[IdentificationResult | None, str, str | None]:
     """(pooled estimate, pooling used, note) of the identified windows."""
-    from galvo_sysid.ident.identify import identify_joint, pool_results
+    from galvo_sysid.ident.identify import identify_joint
+    from galvo_sysid.ident.pool import pool_results
 
     # the combination of the windows is a good start: the joint fit starts from it as it is
     if not results:

@@ -6,11 +6,11 @@ same code serves rclpy messages in the nodes and rosbags-deserialized messages i
 float64 arrays, no header) that a rosbags message class accepts; :func:`fill` sets them on an
 existing message (rclpy's float64[] fields get an ``array.array``).
 
-- ``MoveSamples`` <-> :class:`~galvo_sysid.monitor.pairing.MoveHalf`
+- ``MoveSamples`` <-> :class:`~galvo_sysid.monitor.moves.MoveHalf`
 - ``ModalParameters`` <-> :class:`~galvo_sysid.ident.identify.IdentificationResult` plus its
   :class:`ResultStatus` (identified, or why not: the data do not match the model, the fit
   failed; the model file used)
-- ``DriftStatus`` <-> :class:`~galvo_sysid.monitor.drift.DriftVerdict`
+- ``DriftStatus`` <-> :class:`~galvo_sysid.monitor.verdict.DriftVerdict`
 - :func:`diagnostic_values`: the key/values of a verdict for ``diagnostic_msgs/KeyValue``.
 """
 
@@ -24,19 +24,19 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from galvo_sysid.errors import InvalidDataError
-from galvo_sysid.monitor.drift import (
+from galvo_sysid.monitor.moves import SIGNALS, MoveHalf
+from galvo_sysid.monitor.verdict import (
     LEVEL_NAMES,
     MISMATCH,
     STATUS_NAMES,
     STATUS_OK,
     DriftVerdict,
 )
-from galvo_sysid.monitor.pairing import SIGNALS, MoveHalf
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
-    from galvo_sysid.ident.identify import IdentificationResult
+    from galvo_sysid.ident.result import IdentificationResult
 
 __all__ = [
     'ResultStatus',
@@ -119,7 +119,7 @@ class ResultStatus:
 
     Attributes:
         status: ``STATUS_OK`` (0), ``STATUS_MISMATCH`` (1) or ``STATUS_FAILED`` (2)
-            (:data:`~galvo_sysid.monitor.drift.STATUS_OK`, ...).
+            (:data:`~galvo_sysid.monitor.verdict.STATUS_OK`, ...).
         message: Why the status is not OK ('' when OK).
         model: The plant-model file the window was identified with ('': the packaged model
             of the paper's scanner).
@@ -243,7 +243,7 @@ def result_from_msg(msg: Any, *, method: str = 'refined',
     Raises:
         InvalidDataError: A field is missing or the mode arrays differ in length.
     """
-    from galvo_sysid.ident.identify import IdentificationResult
+    from galvo_sysid.ident.result import IdentificationResult
 
     try:
         residues = _tuple(msg.residues)
@@ -282,7 +282,7 @@ def drift_status_fields(verdict: DriftVerdict) -> dict[str, Any]:
 
 
 def verdict_from_msg(msg: Any) -> DriftVerdict:
-    """A :class:`~galvo_sysid.monitor.drift.DriftVerdict` from a ``DriftStatus`` message.
+    """A :class:`~galvo_sysid.monitor.verdict.DriftVerdict` from a ``DriftStatus`` message.
 
     Raises:
         InvalidDataError: A field is missing or the level is unknown.

@@ -35,35 +35,48 @@ identification (``noise_floor``, relative) is added to the reported standard dev
 the slope's standard error is widened when the residual scatter is larger than expected, so
 angle-dependent identification biases do not look like a trend.
 
-Tolerances (and noise floors) are relative and given per parameter name (``omega_2``) or per
-kind (``k`` for the residues k1.., ``omega``, ``zeta``), so any number of modes works. The
-tolerance of a parameter is, first found:
-
-1. its own entry (``omega_2``);
-2. the entry of its kind (``omega``; k0, the rigid body, has no kind);
-3. the built-in default of its name, :data:`DEFAULT_TOLERANCES` (k0 and modes 1-3: set for
-   the paper's scanner, so it is judged as before);
-4. the built-in default of its kind, :data:`DEFAULT_KIND_TOLERANCES` (modes 4 and up).
-
-The per-name defaults reflect what one window of 100 moves identifies reliably on the paper's
-scanner: omega_1,2 to a few hundredths of a percent, k0..k2 and zeta_1,2 to a few percent, the
-third mode hardly at all (the paper's Table II has zeta_3 off by +655 %; in the simulated
-closed loop the mode sits under a notch filter), so its tolerances are wide enough never to
-fire. For another scanner, give the kinds (and names where needed) in the watchdog's YAML.
+Tolerances and noise floors are relative, per parameter name or kind; the rule that picks
+them is :mod:`galvo_sysid.monitor.tolerances`. The verdict itself, its levels and the result
+statuses are :mod:`galvo_sysid.monitor.verdict`; the watchdog's monitor from its parameters is
+:func:`galvo_sysid.monitor.reference.monitor_from_parameters`.
 """
 
 from __future__ import annotations
 
 import math
-import re
 from collections import deque
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.model import REFERENCE_MODEL, ModalModel, PlantModel, load_model, model_label
+from galvo_sysid.model import REFERENCE_MODEL, ModalModel, model_label
+from galvo_sysid.monitor.parameters import MONITOR_PARAMETERS, WATCHDOG_PARAMETERS, defaults
+from galvo_sysid.monitor.reference import monitor_from_parameters, reference_from_parameters
+from galvo_sysid.monitor.tolerances import (
+    DEFAULT_KIND_NOISE_FLOOR,
+    DEFAULT_KIND_TOLERANCES,
+    DEFAULT_NOISE_FLOOR,
+    DEFAULT_TOLERANCES,
+    KINDS,
+    parameter_kind,
+    parameter_names,
+    resolve,
+)
+from galvo_sysid.monitor.verdict import (
+    ERROR,
+    LEVEL_NAMES,
+    MISMATCH,
+    OK,
+    STALE,
+    STATUS_FAILED,
+    STATUS_MISMATCH,
+    STATUS_NAMES,
+    STATUS_OK,
+    WARN,
+    DriftVerdict,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -93,53 +106,18 @@ __all__ = [
     'parameter_names',
     'reference_from_parameters',
 ]
+# Re-exported here, where they were defined before: the levels, statuses and DriftVerdict
+# (galvo_sysid.monitor.verdict), the names, kinds and default tolerances
+# (galvo_sysid.monitor.tolerances), MONITOR_PARAMETERS (galvo_sysid.monitor.parameters) and
+# the monitor from watchdog parameters (galvo_sysid.monitor.reference).
 
-OK, WARN, ERROR, STALE, MISMATCH = 0, 1, 2, 3, 4
-"""Verdict levels, the same numbers as ``DriftStatus.msg`` (OK..STALE also as
-``DiagnosticStatus``; MISMATCH is reported there as ERROR)."""
+_DEFAULTS = defaults('watchdog')
+"""The watchdog node's parameter defaults: the monitor's defaults (one source)."""
 
-LEVEL_NAMES = ('OK', 'WARN', 'ERROR', 'STALE', 'MISMATCH')
-"""Names of the levels, indexed by level."""
-
-STATUS_OK, STATUS_MISMATCH, STATUS_FAILED = 0, 1, 2
-"""Status of a window's result, the same numbers as ``ModalParameters.msg``: identified, the
-data do not match the plant model, the fit failed."""
-
-STATUS_NAMES = ('OK', 'MISMATCH', 'FAILED')
-"""Names of the statuses, indexed by status."""
-
-KINDS = ('k', 'omega', 'zeta')
-"""Kinds of the resonant modes' parameters (residues k1.., omega_i, zeta_i)."""
-
-DEFAULT_TOLERANCES: dict[str, float] = {
-    'k0': 0.02, 'k1': 0.05, 'k2': 0.08, 'k3': 5.0,
-    'omega_1': 0.01, 'omega_2': 0.01, 'omega_3': 0.6,
-    'zeta_1': 0.20, 'zeta_2': 0.20, 'zeta_3': 100.0,
-}
-"""Default relative tolerance per parameter of the 3-mode model (0.01 = 1 %).
-
-Set from what one window of 100 moves identifies on the simulated closed loop (refined
-method, 75 windows over the paper's 19 angles, both signs): scatter (sd, max) of the relative
-error k0 0.1 % (0.4 %), k1 0.6 % (1.7 %), k2 1.2 % (4.7 %), omega_1 0.004 % (0.015 %),
-omega_2 0.008 % (0.03 %), zeta_1 0.9 % (4 %), zeta_2 1.4 % (6 %). The third mode sits under
-the controller's notch and is hardly excited: k3 off by up to 370 %, omega_3 by 30 % (its
-band's edge), zeta_3 by 5000 %, so its tolerances effectively switch it off.
-"""
-
-DEFAULT_NOISE_FLOOR: dict[str, float] = {
-    'k0': 0.0015, 'k1': 0.008, 'k2': 0.015, 'k3': 1.5,
-    'omega_1': 0.0001, 'omega_2': 0.0002, 'omega_3': 0.15,
-    'zeta_1': 0.012, 'zeta_2': 0.02, 'zeta_3': 10.0,
-}
-"""Default window-to-window scatter of each relative deviation (added to the reported std;
-about 1.5 times the scatter measured for :data:`DEFAULT_TOLERANCES`)."""
-
-DEFAULT_KIND_TOLERANCES: dict[str, float] = {'k': 0.08, 'omega': 0.01, 'zeta': 0.3}
-"""Default relative tolerance of the modes without a per-name default (mode 4 and up): those
-of a well-excited mode of the paper's scanner, zeta a little wider."""
-
-DEFAULT_KIND_NOISE_FLOOR: dict[str, float] = {'k': 0.015, 'omega': 0.0002, 'zeta': 0.02}
-"""Default window-to-window scatter of the modes without a per-name default."""
+_RANGES: dict[str, tuple[float, float]] = {
+    s.name: (s.low, s.high) for s in WATCHDOG_PARAMETERS
+    if s.low is not None and s.high is not None}
+"""The watchdog parameters' ranges: what the monitor accepts (one source)."""
 
 
 class ModalEstimate(Protocol):
@@ -172,58 +150,6 @@ class ModalEstimate(Protocol):
     def fit_percent(self) -> float: ...  # noqa: D102
 
 
-def parameter_names(n_modes: int) -> tuple[str, ...]:
-    """Return the parameter names of a model with ``n_modes`` resonant modes, in order."""
-    return ('k0', *(f'k{i}' for i in range(1, n_modes + 1)),
-            *(f'omega_{i}' for i in range(1, n_modes + 1)),
-            *(f'zeta_{i}' for i in range(1, n_modes + 1)))
-
-
-_NAME = re.compile(r'^(?:k0|k([1-9][0-9]*)|(omega|zeta)_([1-9][0-9]*))$')
-
-
-def _split_name(name: str) -> tuple[str, int] | None:
-    """(kind, mode) of a parameter name (('k0', 0) for k0), None if it is no parameter name."""
-    m = _NAME.match(name)
-    if m is None:
-        return None
-    if name == 'k0':
-        return 'k0', 0
-    if m.group(1):
-        return 'k', int(m.group(1))
-    return m.group(2), int(m.group(3))
-
-
-def parameter_kind(name: str) -> str:
-    """The kind of a parameter name: ``'k'`` (k1, k2, ..), ``'omega'``, ``'zeta'``, or ``'k0'``.
-
-    Raises:
-        ConfigurationError: Not a parameter name.
-    """
-    split = _split_name(name)
-    if split is None:
-        raise ConfigurationError(f'{name!r} is not a parameter name (k0, k<i>, omega_<i>, '
-                                 f'zeta_<i>)')
-    return split[0]
-
-
-def _resolve(names: Sequence[str], given: Mapping[str, float], table: Mapping[str, float],
-             kinds: Mapping[str, float]) -> list[float]:
-    """Per name: its own entry, its kind's entry, its built-in default, its kind's default."""
-    out = []
-    for n in names:
-        kind = parameter_kind(n)
-        if n in given:
-            out.append(float(given[n]))
-        elif kind in given:
-            out.append(float(given[kind]))
-        elif n in table:
-            out.append(float(table[n]))
-        else:
-            out.append(float(kinds[kind]))
-    return out
-
-
 def _values(result: ModalEstimate) -> tuple[list[float], list[float]]:
     values = [result.k0, *result.residues, *result.natural_frequencies, *result.damping_ratios]
     stds = [result.k0_std, *result.residues_std, *result.natural_frequencies_std,
@@ -233,61 +159,6 @@ def _values(result: ModalEstimate) -> tuple[list[float], list[float]]:
 
 def _pct(x: float) -> str:
     return f'{100 * x:+.2f} %'
-
-
-@dataclass(frozen=True)
-class DriftVerdict:
-    """The monitor's verdict on one window.
-
-    Attributes:
-        window_index: The window judged.
-        level: 0 OK, 1 WARN, 2 ERROR, 3 STALE, 4 MISMATCH.
-        names: Parameter names (k0, k1.., omega_1.., zeta_1..).
-        relative_deviation: (identified - reference) / reference per parameter.
-        tolerance: Relative tolerance per parameter.
-        message: One human-readable line.
-        relative_std: Identified standard deviation relative to the reference.
-        trend_per_window: Fitted slope of the relative deviation per window (NaN until the
-            trend test has enough windows).
-        flagged: The parameters that raised the level.
-        target_angle: Target angle of the window [deg].
-    """
-
-    window_index: int
-    level: int
-    names: tuple[str, ...]
-    relative_deviation: tuple[float, ...]
-    tolerance: tuple[float, ...]
-    message: str
-    relative_std: tuple[float, ...] = ()
-    trend_per_window: tuple[float, ...] = ()
-    flagged: tuple[str, ...] = ()
-    target_angle: float = math.nan
-
-    @property
-    def level_name(self) -> str:
-        """'OK', 'WARN', 'ERROR', 'STALE' or 'MISMATCH'."""
-        return LEVEL_NAMES[self.level]
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready form; NaN becomes None."""
-        def clean(x: float) -> float | None:
-            return float(x) if math.isfinite(x) else None
-
-        def by_name(values: Sequence[float]) -> dict[str, float | None]:
-            return {n: clean(v) for n, v in zip(self.names, values, strict=False)}
-
-        return {
-            'window_index': int(self.window_index),
-            'level': self.level_name,
-            'message': self.message,
-            'target_angle': clean(self.target_angle),
-            'flagged': list(self.flagged),
-            'deviations': by_name(self.relative_deviation),
-            'tolerances': by_name(self.tolerance),
-            'relative_std': by_name(self.relative_std),
-            'trend_per_window': by_name(self.trend_per_window),
-        }
 
 
 @dataclass(frozen=True)
@@ -326,10 +197,15 @@ class DriftMonitor:
 
     def __init__(self, *, reference: ModalModel = REFERENCE_MODEL,
                  tolerances: Mapping[str, float] | None = None,
-                 noise_floor: Mapping[str, float] | None = None, warn_fraction: float = 0.5,
-                 n_sigma: float = 3.0, trend_windows: int = 8, trend_min_windows: int = 3,
-                 trend_sigma: float = 4.0, trend_fraction: float = 0.3,
-                 step_fraction: float = 0.5, min_fit_percent: float = 75.0,
+                 noise_floor: Mapping[str, float] | None = None,
+                 warn_fraction: float = _DEFAULTS['warn_fraction'],
+                 n_sigma: float = _DEFAULTS['n_sigma'],
+                 trend_windows: int = _DEFAULTS['trend_windows'],
+                 trend_min_windows: int = _DEFAULTS['trend_min_windows'],
+                 trend_sigma: float = _DEFAULTS['trend_sigma'],
+                 trend_fraction: float = _DEFAULTS['trend_fraction'],
+                 step_fraction: float = _DEFAULTS['step_fraction'],
+                 min_fit_percent: float = _DEFAULTS['min_fit_percent'],
                  reference_name: str = model_label(None)) -> None:
         self.reference = reference
         self.reference_name = str(reference_name)
@@ -343,8 +219,8 @@ class DriftMonitor:
                                          f'known: {list(self.names)} and the kinds '
                                          f'{list(KINDS)}')
         try:
-            tol = _resolve(self.names, given_tol, DEFAULT_TOLERANCES, DEFAULT_KIND_TOLERANCES)
-            floor = _resolve(self.names, given_floor, DEFAULT_NOISE_FLOOR,
+            tol = resolve(self.names, given_tol, DEFAULT_TOLERANCES, DEFAULT_KIND_TOLERANCES)
+            floor = resolve(self.names, given_floor, DEFAULT_NOISE_FLOOR,
                              DEFAULT_KIND_NOISE_FLOOR)
         except (TypeError, ValueError) as err:
             raise ConfigurationError(f'tolerances and noise floors must be numbers: {err}') \
@@ -354,12 +230,11 @@ class DriftMonitor:
                 raise ConfigurationError(f'tolerance of {n} must be > 0, got {t}')
             if not (math.isfinite(f) and f >= 0):
                 raise ConfigurationError(f'noise floor of {n} must be >= 0, got {f}')
-        checks = (('warn_fraction', warn_fraction, 0.0, 1.0), ('n_sigma', n_sigma, 0.0, 100.0),
-                  ('trend_sigma', trend_sigma, 0.0, 100.0),
-                  ('trend_fraction', trend_fraction, 0.0, 1.0),
-                  ('step_fraction', step_fraction, 0.0, 1e6),
-                  ('min_fit_percent', min_fit_percent, -1e9, 100.0))
-        for name, value, lo, hi in checks:
+        checks = (('warn_fraction', warn_fraction), ('n_sigma', n_sigma),
+                  ('trend_sigma', trend_sigma), ('trend_fraction', trend_fraction),
+                  ('step_fraction', step_fraction), ('min_fit_percent', min_fit_percent))
+        for name, value in checks:
+            lo, hi = _RANGES[name]
             if not (math.isfinite(value) and lo <= value <= hi):
                 raise ConfigurationError(f'{name} must be within [{lo}, {hi}], got {value}')
         if int(trend_windows) < 0 or (trend_windows and not
@@ -564,76 +439,3 @@ def _weighted_line(points: Sequence[_Point]) -> tuple[float, float, float] | Non
     chi2 = float((w * resid**2).sum()) / (len(pts) - 2)
     se = math.sqrt(max(1.0, chi2) / sxx)
     return slope, se, ym + slope * (float(x[-1]) - xm)
-
-
-MONITOR_PARAMETERS = ('warn_fraction', 'n_sigma', 'trend_windows', 'trend_min_windows',
-                      'trend_sigma', 'trend_fraction', 'step_fraction', 'min_fit_percent')
-"""Options of :class:`DriftMonitor` that are watchdog node parameters of the same name."""
-
-
-def reference_from_parameters(values: Mapping[str, Any]) -> PlantModel:
-    """The reference model from watchdog parameters: the model file ``model`` ('' or missing:
-    the packaged model of the paper's scanner).
-
-    Raises:
-        ConfigurationError: The file is not a valid plant model, or the parameters still
-            hold the ``reference.*`` values of older versions (the model file replaced them).
-        InvalidDataError: The file cannot be read.
-    """  # noqa: D205
-    old = sorted(k for k in values if k.startswith('reference.'))
-    if old:
-        raise ConfigurationError(
-            f'watchdog parameters {", ".join(old)} are no longer read: the reference is the '
-            f'plant-model file of parameter model (e.g. one written by galvo-sysid commission)')
-    path = values.get('model') or ''
-    if not isinstance(path, str):
-        raise ConfigurationError(f'watchdog parameter model must be a file name, got {path!r}')
-    return load_model(path or None)
-
-
-def monitor_from_parameters(values: Mapping[str, Any], *,
-                            model: PlantModel | None = None) -> DriftMonitor:
-    """The watchdog node's :class:`DriftMonitor` from its parameters, by name.
-
-    The one definition used by the watchdog node and by ``galvo-sysid identify
-    --watchdog-params``: the reference model (the file of ``model``, see
-    :func:`reference_from_parameters`), the tolerances ``tolerances.<name>`` and
-    ``tolerances.<kind>`` given (the rule of the module docs; None means not given; names of
-    modes the reference lacks are ignored, as the node does not declare them), and the
-    options of :data:`MONITOR_PARAMETERS`; other names are ignored and missing ones take
-    :class:`DriftMonitor`'s defaults (the node's).
-
-    Args:
-        values: Parameter values by name.
-        model: The reference model already read from the file of ``values['model']`` (saves
-            reading it again); None reads it.
-
-    Raises:
-        ConfigurationError: A value is not a number or out of range, an unknown tolerance
-            name, or a bad model file.
-        InvalidDataError: The model file cannot be read.
-    """
-    reference = reference_from_parameters(values) if model is None else model
-    tolerances: dict[str, float] = {}
-    for key, value in values.items():
-        if not key.startswith('tolerances.') or value is None:
-            continue
-        name = key.split('.', 1)[1]
-        split = _split_name(name)
-        if name not in KINDS and split is None:
-            raise ConfigurationError(
-                f'unknown watchdog parameter {key}: tolerances are named tolerances.k0, '
-                f'tolerances.<kind> (k, omega, zeta) or tolerances.<parameter> (k1, omega_2, '
-                f'zeta_3, ...)')
-        if split is not None and split[1] > reference.n_modes:
-            continue  # a mode this reference has not
-        if isinstance(value, bool) or not isinstance(value, int | float | str):
-            raise ConfigurationError(f'bad watchdog parameter {key}: not a number: {value!r}')
-        try:
-            tolerances[name] = float(value)
-        except ValueError:
-            raise ConfigurationError(f'bad watchdog parameter {key}: not a number: '
-                                     f'{value!r}') from None
-    options = {k: values[k] for k in MONITOR_PARAMETERS if k in values}
-    return DriftMonitor(reference=reference.modal, tolerances=tolerances,
-                        reference_name=model_label(values.get('model') or None), **options)

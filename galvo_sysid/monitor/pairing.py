@@ -27,11 +27,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.monitor.moves import SIGNALS, MoveHalf, Window
+from galvo_sysid.monitor.parameters import WINDOWER_PARAMETERS, defaults
+from galvo_sysid.monitor.rejections import Rejection, summarize_rejections
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable
-
-    from numpy.typing import ArrayLike, NDArray
+    from numpy.typing import NDArray
 
 __all__ = [
     'SIGNALS',
@@ -42,92 +43,12 @@ __all__ = [
     'Window',
     'summarize_rejections',
 ]
+# SIGNALS, MoveHalf, Window (galvo_sysid.monitor.moves), Rejection, summarize_rejections
+# (galvo_sysid.monitor.rejections) and WINDOWER_PARAMETERS (galvo_sysid.monitor.parameters)
+# are re-exported here, where they were defined before.
 
-SIGNALS = ('current', 'encoder')
-"""The two halves of a move."""
-
-WINDOWER_PARAMETERS = ('window_size', 'samples', 'max_samples', 'pair_timeout', 'time_jump',
-                       'max_pending', 'max_windows', 'max_buffered_samples')
-"""Settings of :class:`MoveWindower` that are sysid node parameters of the same name (the one
-list used by the sysid node and by ``galvo-sysid identify``)."""
-
-
-@dataclass(frozen=True)
-class MoveHalf:
-    """One ``MoveSamples`` message as plain values.
-
-    Attributes:
-        signal: ``'current'`` or ``'encoder'``.
-        move_id: Shared by the two halves of one move.
-        target_angle: Signed commanded rotation [deg].
-        sample_period: Sampling period [s].
-        stamp: Time of the first sample [s].
-        data: The samples, shape (N,).
-    """
-
-    signal: str
-    move_id: int
-    target_angle: float
-    sample_period: float
-    stamp: float
-    data: NDArray[np.float64]
-
-    @classmethod
-    def create(cls, signal: str, *, move_id: int, target_angle: float, sample_period: float,
-               stamp: float, data: ArrayLike) -> MoveHalf:
-        """Build a half from loosely typed values (``data`` is viewed as float64, not checked)."""
-        arr = np.asarray(data, dtype=np.float64)
-        return cls(signal=signal, move_id=int(move_id), target_angle=float(target_angle),
-                   sample_period=float(sample_period), stamp=float(stamp), data=arr)
-
-
-@dataclass(frozen=True)
-class Rejection:
-    """A move set aside, reported once.
-
-    Attributes:
-        move_id: The move's id.
-        target_angle: Its signed target angle [deg] (NaN if unknown).
-        stamp: Its stamp [s] (NaN if unknown).
-        reason: Short human-readable reason, e.g. ``'NaN in encoder'``.
-    """
-
-    move_id: int
-    target_angle: float
-    stamp: float
-    reason: str
-
-
-@dataclass(frozen=True)
-class Window:
-    """A window of moves of one signed target angle, ready to identify.
-
-    Attributes:
-        index: Running number of the windows handed out by this windower (from 0).
-        target_angle: Signed commanded rotation of the moves [deg].
-        sample_period: Sampling period [s].
-        current: Commanded current, shape (M, N).
-        encoder: Encoder angle, shape (M, N).
-        move_ids: The moves' ids in arrival order.
-        first_stamp: Stamp of the earliest move [s].
-        last_stamp: Stamp of the latest move [s].
-        partial: True when handed out by :meth:`MoveWindower.flush` before it was full.
-    """
-
-    index: int
-    target_angle: float
-    sample_period: float
-    current: NDArray[np.float64]
-    encoder: NDArray[np.float64]
-    move_ids: tuple[int, ...]
-    first_stamp: float
-    last_stamp: float
-    partial: bool = False
-
-    @property
-    def moves(self) -> int:
-        """Number of moves in the window."""
-        return len(self.move_ids)
+_DEFAULTS = defaults('sysid')
+"""The sysid node's parameter defaults: the windower's defaults (one source)."""
 
 
 @dataclass
@@ -148,7 +69,9 @@ def _finite_positive(value: float) -> bool:
 class MoveWindower:
     """Pair move halves by move_id and collect windows of moves per signed target angle.
 
-    Pure logic, no ROS; bounded memory; decides from stamps, not from arrival time.
+    Pure logic, no ROS; bounded memory; decides from stamps, not from arrival time. The
+    settings of :data:`WINDOWER_PARAMETERS` are sysid node parameters of the same name, and
+    their defaults are those parameters' (:mod:`galvo_sysid.monitor.parameters`).
 
     Args:
         window_size: Moves per window (>= 2).
@@ -173,11 +96,15 @@ class MoveWindower:
         ConfigurationError: On an out-of-range setting.
     """
 
-    def __init__(self, *, window_size: int = 100, samples: int = 0, max_samples: int = 65536,
-                 min_samples: int = 32, pair_timeout: float = 1.0, time_jump: float = 1.0,
-                 angle_resolution: float = 1e-6, max_pending: int = 2000, max_windows: int = 64,
-                 max_buffered_samples: int = 20_000_000, first_index: int = 0,
-                 sample_period: float = 0.0) -> None:
+    def __init__(self, *, window_size: int = _DEFAULTS['window_size'],
+                 samples: int = _DEFAULTS['samples'],
+                 max_samples: int = _DEFAULTS['max_samples'], min_samples: int = 32,
+                 pair_timeout: float = _DEFAULTS['pair_timeout'],
+                 time_jump: float = _DEFAULTS['time_jump'], angle_resolution: float = 1e-6,
+                 max_pending: int = _DEFAULTS['max_pending'],
+                 max_windows: int = _DEFAULTS['max_windows'],
+                 max_buffered_samples: int = _DEFAULTS['max_buffered_samples'],
+                 first_index: int = 0, sample_period: float = 0.0) -> None:
         if int(window_size) < 2:
             raise ConfigurationError(f'window_size must be >= 2, got {window_size}')
         if int(min_samples) < 1 or int(max_samples) < int(min_samples):
@@ -523,28 +450,3 @@ class MoveWindower:
 
 def _other(signal: str) -> str:
     return 'encoder' if signal == 'current' else 'current'
-
-
-def summarize_rejections(rejections: Iterable[Rejection], *, max_ids: int = 5) -> list[str]:
-    """Group rejections by reason into one readable line per reason.
-
-    Example: ``'3 moves set aside (ids 4, 9, 12; 0.3 deg): NaN in encoder'``.
-    """
-    groups: dict[str, list[Rejection]] = {}
-    for r in rejections:
-        groups.setdefault(r.reason, []).append(r)
-    lines = []
-    for reason, rs in groups.items():
-        ids = ', '.join(str(r.move_id) for r in rs[:max_ids])
-        if len(rs) > max_ids:
-            ids += f', ... {rs[-1].move_id}'
-        angles = sorted({r.target_angle for r in rs if math.isfinite(r.target_angle)})
-        where = ''
-        if len(angles) == 1:
-            where = f'; {angles[0]:g} deg'
-        elif angles:
-            where = f'; {len(angles)} angles'
-        noun = 'move' if len(rs) == 1 else 'moves'
-        label = 'id' if len(rs) == 1 else 'ids'
-        lines.append(f'{len(rs)} {noun} set aside ({label} {ids}{where}): {reason}')
-    return lines

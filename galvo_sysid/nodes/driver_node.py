@@ -14,6 +14,8 @@ fast as possible. Plant changes take effect from the next move when their parame
 ``step.*`` (a step change) and ``effects`` (the physical effects, as the discrepancy
 workflow's JSON list).
 
+The parameters are :data:`galvo_sysid.monitor.parameters.DRIVER_PARAMETERS`.
+
 Run: ``galvo_driver --ros-args --params-file config/driver.yaml``.
 """
 
@@ -32,15 +34,13 @@ from rclpy.node import Node
 
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError
 from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields
-from galvo_sysid.model import PAPER_ANGLES, Drift, PlantModel, StepChange, load_model
+from galvo_sysid.interfaces.topics import CURRENT_TOPIC, ENCODER_TOPIC
+from galvo_sysid.model import Drift, PlantModel, StepChange, load_model
 from galvo_sysid.model.effects import Effect, effects_from_list
 from galvo_sysid.model.physics import check_parameter_name
+from galvo_sysid.monitor.parameters import DRIVER_PARAMETERS
 from galvo_sysid.nodes.framework import (
-    CURRENT_TOPIC,
-    ENCODER_TOPIC,
-    RELIABILITY,
     ParameterSet,
-    ParamSpec,
     logger,
     moves_qos,
     run_node,
@@ -54,41 +54,8 @@ if TYPE_CHECKING:
 
 __all__ = ['PARAMETERS', 'DriverNode', 'PlantChanges', 'main', 'simulator_config']
 
-PARAMETERS = (
-    ParamSpec('model', '', 'plant-model file of the simulated scanner ("": the packaged model of '
-              "the paper's scanner)", read_only=True),
-    ParamSpec('record_length', 0, "recorded samples per move (0: the model's)", 0, 1_000_000,
-              read_only=True),
-    ParamSpec('dwell_length', -1, 'samples between a record and the next move (-1: the '
-              "model's)", -1, 1_000_000, read_only=True),
-    ParamSpec('angles', list(PAPER_ANGLES), 'rotation angles of the schedule [deg] (positive; '
-              'each is moved forward then back)', 1e-6, 20.0),
-    ParamSpec('moves_per_angle', 200, 'moves per angle, alternating +a/-a (even)', 2, 1_000_000),
-    ParamSpec('cycles', 0, 'times through the schedule (0: forever)', 0, 1_000_000_000),
-    ParamSpec('rate_factor', 1.0, 'simulated seconds per wall second (1 real time, 0 as fast '
-              'as possible)', 0.0, 1e6),
-    ParamSpec('seed', 0, 'noise seed', 0, 2**31 - 1, read_only=True),
-    ParamSpec('wait_for_subscribers', 1, 'subscribers each topic needs before moves start '
-              '(0: start at once)', 0, 1000),
-    ParamSpec('wait_timeout', 0.0, 'give up waiting for subscribers after this long and start '
-              'anyway [s] (0: wait forever)', 0.0, 1e6),
-    ParamSpec('exit_when_done', False, 'exit once the schedule is done (cycles > 0)'),
-    ParamSpec('qos_depth', 1000, 'publisher queue depth (0: keep all)', 0, 1_000_000,
-              read_only=True),
-    ParamSpec('qos_reliability', 'reliable', 'publisher QoS reliability (best_effort reaches '
-              'only best-effort subscribers)', choices=RELIABILITY, read_only=True),
-    ParamSpec('drift.parameter', '', 'plant parameter that drifts ("" for none; k0, k<i>, '
-              'omega_<i>, zeta_<i>, lag_time_constant, dead_time, friction_current, '
-              'pivot_frequency, gain_ratio, current_limit)'),
-    ParamSpec('drift.rate', 0.0, 'relative change per drift.unit (e.g. -0.001)', -1.0, 1.0),
-    ParamSpec('drift.unit', 'second', 'unit of the drift rate', choices=('second', 'move')),
-    ParamSpec('step.parameter', '', 'plant parameter that steps ("" for none; names as '
-              'drift.parameter)'),
-    ParamSpec('step.factor', 1.0, 'the step multiplies the parameter by this', 0.01, 100.0),
-    ParamSpec('step.at_move', -1, 'move index of the step (-1: the next move)', -1, 2**62),
-    ParamSpec('effects', '[]', "physical effects added to the model's, as JSON: [{\"effect\": "
-              'name, "parameters": {...}}, ...] (see galvo_sysid.model.effects)'),
-)
+PARAMETERS = DRIVER_PARAMETERS
+"""The node's parameters (:data:`galvo_sysid.monitor.parameters.DRIVER_PARAMETERS`)."""
 
 
 def _effects(text: str) -> tuple[Effect, ...]:

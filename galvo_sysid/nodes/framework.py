@@ -1,10 +1,15 @@
-"""What the three nodes share: QoS profiles, declared parameters, a clean main loop."""
+"""What the three nodes share: QoS profiles, declared parameters, a clean main loop.
+
+The parameters themselves (names, defaults, ranges) are :mod:`galvo_sysid.monitor.parameters`
+and the topic names :mod:`galvo_sysid.interfaces.topics` (both without ROS); this module
+declares the parameters with their ROS descriptors (:func:`descriptor`) and checks changes
+(:class:`ParameterSet`). ``ParamSpec``, ``RELIABILITY`` and the topic names are re-exported
+here, where they were defined before.
+"""
 
 from __future__ import annotations
 
-import math
 import sys
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import rclpy
@@ -20,6 +25,14 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.utilities import try_shutdown
 
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError
+from galvo_sysid.interfaces.topics import (
+    CURRENT_TOPIC,
+    DIAGNOSTICS_TOPIC,
+    DRIFT_TOPIC,
+    ENCODER_TOPIC,
+    RESULT_TOPIC,
+)
+from galvo_sysid.monitor.parameters import RELIABILITY, ParamSpec
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -37,6 +50,7 @@ __all__ = [
     'RESULT_TOPIC',
     'ParamSpec',
     'ParameterSet',
+    'descriptor',
     'diagnostics_qos',
     'logger',
     'moves_qos',
@@ -44,17 +58,6 @@ __all__ = [
     'run_node',
     'scanner_name',
 ]
-
-CURRENT_TOPIC = 'galvo/current'
-ENCODER_TOPIC = 'galvo/encoder'
-RESULT_TOPIC = 'galvo/modal_parameters'
-DRIFT_TOPIC = 'galvo/drift'
-DIAGNOSTICS_TOPIC = '/diagnostics'
-"""Topic names: relative (a namespace per scanner prefixes them), except /diagnostics."""
-
-
-RELIABILITY = ('reliable', 'best_effort')
-"""Choices of the move topics' reliability (``qos_reliability`` parameters)."""
 
 
 def moves_qos(depth: int, *, reliability: str = 'reliable') -> QoSProfile:
@@ -97,65 +100,27 @@ def scanner_name(node: Node, given: str = '') -> str:
     return ns or 'galvo'
 
 
-@dataclass(frozen=True)
-class ParamSpec:
-    """One declared parameter: default, description and (for numbers) an inclusive range.
+def descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    """The ROS descriptor of a parameter (with IntegerRange / FloatingPointRange when both
+    ends of its range are given and the low end is allowed).
 
-    A ``low``/``high`` of None leaves that side open (the check is done in Python; ROS
-    ranges need both ends, so a half-open range is declared without a ROS range). A default
-    of None declares an optional number: not set unless given (a parameter file, the
-    command line, a live change), its value None until then.
-    """
-
-    name: str
-    default: Any
-    description: str
-    low: float | None = None
-    high: float | None = None
-    read_only: bool = False
-    choices: tuple[str, ...] = ()
-    exclusive_low: bool = False
-
-    def descriptor(self) -> ParameterDescriptor:
-        """The ROS descriptor (with IntegerRange / FloatingPointRange when both ends given)."""
-        text = self.description
-        if self.choices:
-            text += f' (one of: {", ".join(self.choices)})'
-        if self.default is None:  # optional: dynamically typed, not set until given
-            return ParameterDescriptor(description=text + ' (optional number)',
-                                       read_only=self.read_only, dynamic_typing=True)
-        d = ParameterDescriptor(description=text, read_only=self.read_only)
-        if self.low is not None and self.high is not None and not self.exclusive_low:
-            if isinstance(self.default, bool):
-                pass
-            elif isinstance(self.default, int):
-                d.integer_range = [IntegerRange(from_value=int(self.low), to_value=int(self.high),
-                                                step=1)]
-            elif isinstance(self.default, float):
-                d.floating_point_range = [FloatingPointRange(
-                    from_value=float(self.low), to_value=float(self.high), step=0.0)]
-        return d
-
-    def check(self, value: Any) -> str | None:
-        """Why ``value`` is not acceptable, or None."""
-        if self.choices and value not in self.choices:
-            return f'{self.name} must be one of {list(self.choices)}, got {value!r}'
-        if self.default is None and value is not None and (
-                isinstance(value, bool) or not isinstance(value, int | float)):
-            return f'{self.name} must be a number, got {value!r}'
-        values: Sequence[Any]
-        values = value if isinstance(value, list | tuple) else [value]
-        for v in values:
-            if isinstance(v, bool) or not isinstance(v, int | float):
-                continue
-            if isinstance(v, float) and not math.isfinite(v):
-                return f'{self.name} must be finite, got {v}'
-            if self.low is not None and (v < self.low or (self.exclusive_low and v <= self.low)):
-                op = '>' if self.exclusive_low else '>='
-                return f'{self.name} must be {op} {self.low:g}, got {v}'
-            if self.high is not None and v > self.high:
-                return f'{self.name} must be <= {self.high:g}, got {v}'
-        return None
+    A default of None declares an optional number: dynamically typed, not set until given.
+    """  # noqa: D205
+    text = spec.text
+    if spec.default is None:  # optional: dynamically typed, not set until given
+        return ParameterDescriptor(description=text + ' (optional number)',
+                                   read_only=spec.read_only, dynamic_typing=True)
+    d = ParameterDescriptor(description=text, read_only=spec.read_only)
+    if spec.low is not None and spec.high is not None and not spec.exclusive_low:
+        if isinstance(spec.default, bool):
+            pass
+        elif isinstance(spec.default, int):
+            d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high),
+                                            step=1)]
+        elif isinstance(spec.default, float):
+            d.floating_point_range = [FloatingPointRange(
+                from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
+    return d
 
 
 class ParameterSet:
@@ -174,7 +139,7 @@ class ParameterSet:
         self._validate = validate
         self._apply = apply
         for s in specs:
-            node.declare_parameter(s.name, s.default, s.descriptor())
+            node.declare_parameter(s.name, s.default, descriptor(s))
         self.values: dict[str, Any] = {
             s.name: node.get_parameter(s.name).value for s in specs}
         reason = self.check(self.values)
@@ -189,7 +154,7 @@ class ParameterSet:
             ConfigurationError: A given value is not acceptable.
         """
         for s in specs:
-            self._node.declare_parameter(s.name, s.default, s.descriptor())
+            self._node.declare_parameter(s.name, s.default, descriptor(s))
             self.specs[s.name] = s
             self.values[s.name] = self._node.get_parameter(s.name).value
         reason = self.check(self.values)

@@ -3,8 +3,9 @@
 Subscribes to ``galvo/current`` and ``galvo/encoder`` (``MoveSamples``), pairs the halves by
 move_id, collects ``window_size`` moves per signed target angle and publishes each window's
 identified ``ModalParameters`` on ``galvo/modal_parameters`` (reliable, transient local).
-The logic is :class:`galvo_sysid.monitor.online.SysidTask`; fits run on a worker thread (by default
-in a child process), never in the subscription callbacks.
+The logic is :class:`galvo_sysid.monitor.tasks.SysidTask`; fits run on a worker thread (by
+default in a child process), never in the subscription callbacks. The parameters are
+:data:`galvo_sysid.monitor.parameters.SYSID_PARAMETERS`.
 
 The scanner's plant model is the file of the read-only parameter ``model`` ('' = the packaged
 model of the paper's scanner), read at start-up (a bad file: one line on stderr, exit code 2):
@@ -34,18 +35,20 @@ from galvo_sysid.interfaces.messages import (
     move_half_from_msg,
     unidentified_fields,
 )
-from galvo_sysid.model import PlantModel, load_model, model_label
-from galvo_sysid.monitor.drift import ERROR, OK, STATUS_MISMATCH, WARN
-from galvo_sysid.monitor.online import FitOutcome, SysidTask, fit_window
-from galvo_sysid.monitor.pairing import WINDOWER_PARAMETERS
-from galvo_sysid.nodes.framework import (
+from galvo_sysid.interfaces.topics import (
     CURRENT_TOPIC,
     DIAGNOSTICS_TOPIC,
     ENCODER_TOPIC,
-    RELIABILITY,
     RESULT_TOPIC,
+)
+from galvo_sysid.model import PlantModel, load_model, model_label
+from galvo_sysid.monitor.pairing import MoveWindower
+from galvo_sysid.monitor.parameters import SYSID_PARAMETERS, WINDOWER_PARAMETERS
+from galvo_sysid.monitor.scheduler import FitOutcome, fit_window
+from galvo_sysid.monitor.tasks import SysidTask
+from galvo_sysid.monitor.verdict import ERROR, OK, STATUS_MISMATCH, WARN
+from galvo_sysid.nodes.framework import (
     ParameterSet,
-    ParamSpec,
     diagnostics_qos,
     logger,
     moves_qos,
@@ -59,46 +62,11 @@ if TYPE_CHECKING:
 
 __all__ = ['PARAMETERS', 'SysidNode', 'main']
 
-METHODS = ('refined', 'paper-A', 'paper-B')
 _LEVEL_BYTES = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN,
                 ERROR: DiagnosticStatus.ERROR}
 
-PARAMETERS = (
-    ParamSpec('model', '', 'plant-model file of the scanner ("": the packaged model of the '
-              "paper's scanner); read at start-up", read_only=True),
-    ParamSpec('window_size', 100, 'moves of one signed target angle per identification window',
-              2, 100_000),
-    ParamSpec('samples', 0, 'expected samples per record (0: the first move of a window '
-              'fixes it)', 0, 10_000_000),
-    ParamSpec('max_samples', 65536, 'largest record accepted [samples]', 32, 10_000_000),
-    ParamSpec('pair_timeout', 1.0, 'a half still unpaired this long (by stamps) is set aside '
-              '[s]', 0.0, 3600.0, exclusive_low=True),
-    ParamSpec('time_jump', 1.0, 'stamps jumping back by more than this reset the buffers [s]',
-              0.0, 1e6, exclusive_low=True),
-    ParamSpec('max_pending', 2000, 'most unpaired halves held', 1, 10_000_000),
-    ParamSpec('max_windows', 64, 'most open windows held (distinct target angles)', 1, 100_000),
-    ParamSpec('max_buffered_samples', 20_000_000, 'most samples held in open windows',
-              1000, 2_000_000_000),
-    ParamSpec('method', 'refined', 'identification method', choices=METHODS),
-    ParamSpec('na', 15, 'ARX order of A[q] (paper pipeline, also the refined start)', 2, 60),
-    ParamSpec('nb', 15, 'ARX order of B[q] (paper pipeline, also the refined start)', 2, 60),
-    ParamSpec('queue_size', 16, 'windows waiting for a fit at most (oldest dropped beyond)',
-              1, 10_000, read_only=True),
-    ParamSpec('fit_processes', 2, 'child processes for the fits (0: fit on a thread)', 0, 16,
-              read_only=True),
-    ParamSpec('qos_depth', 1000, 'input queue depth per topic (0: keep all)', 0, 1_000_000,
-              read_only=True),
-    ParamSpec('qos_reliability', 'reliable', 'input QoS reliability (best_effort for a lossy '
-              'link: takes reliable and best-effort publishers, lost moves are not resent)',
-              choices=RELIABILITY, read_only=True),
-    ParamSpec('warnings_per_second', 20, 'most warning lines a second (the rest summed up)',
-              1, 10_000),
-    ParamSpec('stats_period', 30.0, 'log counters every this many seconds (0: never)',
-              0.0, 1e6),
-    ParamSpec('diagnostics_period', 1.0, 'publish counters on /diagnostics every this many '
-              'seconds (0: never)', 0.0, 1e6, read_only=True),
-    ParamSpec('hardware_id', '', "the scanner's name in diagnostics (default: the namespace)"),
-)
+PARAMETERS = SYSID_PARAMETERS
+"""The node's parameters (:data:`galvo_sysid.monitor.parameters.SYSID_PARAMETERS`)."""
 
 
 def _validate(values: dict[str, Any]) -> str | None:
@@ -156,8 +124,6 @@ class SysidNode(Node):
 
     def _apply(self, values: dict[str, Any], changed: set[str]) -> None:
         if changed & set(WINDOWER_PARAMETERS):
-            from galvo_sysid.monitor.pairing import MoveWindower
-
             old = self.task.windower
             self.task.windower = MoveWindower(**self._windower_args(values),
                                               first_index=old.next_index)
@@ -168,7 +134,7 @@ class SysidNode(Node):
         if changed & {'method', 'na', 'nb'}:
             self.task.fitter.set_fit(self._fit_function(values))
             self.log.info(f'identification now {values["method"]} '
-                                   f'(na={values["na"]}, nb={values["nb"]})')
+                          f'(na={values["na"]}, nb={values["nb"]})')
 
     def _on_half(self, msg: MoveSamples, *, signal: str) -> None:
         try:

@@ -12,9 +12,12 @@ of the paper's scanner, Table I), read at start-up (a bad file: one line on stde
 2). Tolerances are ``tolerances.<name>`` (``tolerances.omega_2``, declared for every mode of
 the model) and the kind defaults ``tolerances.k``, ``tolerances.omega``, ``tolerances.zeta``
 for the modes without their own; not set, the built-in defaults apply (the rule:
-:mod:`galvo_sysid.monitor.drift`). A window whose data did not match the model the sysid node
-used (``status`` not OK), or with another number of modes, gives a MISMATCH verdict
+:mod:`galvo_sysid.monitor.tolerances`). A window whose data did not match the model the sysid
+node used (``status`` not OK), or with another number of modes, gives a MISMATCH verdict
 (diagnostic level ERROR), never a drift.
+
+The logic is :class:`galvo_sysid.monitor.tasks.WatchdogTask`; the parameters are
+:data:`galvo_sysid.monitor.parameters.WATCHDOG_PARAMETERS`.
 
 Run: ``watchdog --ros-args --params-file config/watchdog.yaml [-r __ns:=/scanner_1]``.
 """
@@ -38,27 +41,14 @@ from galvo_sysid.interfaces.messages import (
     stamp_to_seconds,
     status_from_msg,
 )
+from galvo_sysid.interfaces.topics import DIAGNOSTICS_TOPIC, DRIFT_TOPIC, RESULT_TOPIC
 from galvo_sysid.model import PlantModel, load_model, model_label
-from galvo_sysid.monitor.drift import (
-    DEFAULT_KIND_TOLERANCES,
-    DEFAULT_TOLERANCES,
-    ERROR,
-    KINDS,
-    MISMATCH,
-    OK,
-    STALE,
-    WARN,
-    DriftVerdict,
-    monitor_from_parameters,
-    parameter_kind,
-)
-from galvo_sysid.monitor.online import WatchdogTask
+from galvo_sysid.monitor.parameters import DECLARED_MODES, WATCHDOG_PARAMETERS, tolerance_specs
+from galvo_sysid.monitor.reference import monitor_from_parameters
+from galvo_sysid.monitor.tasks import WatchdogTask
+from galvo_sysid.monitor.verdict import ERROR, MISMATCH, OK, STALE, WARN, DriftVerdict
 from galvo_sysid.nodes.framework import (
-    DIAGNOSTICS_TOPIC,
-    DRIFT_TOPIC,
-    RESULT_TOPIC,
     ParameterSet,
-    ParamSpec,
     diagnostics_qos,
     logger,
     results_qos,
@@ -70,61 +60,14 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
 
 __all__ = ['PARAMETERS', 'WatchdogNode', 'main', 'tolerance_specs']
+# tolerance_specs (galvo_sysid.monitor.parameters) is re-exported here, where it was defined.
 
 _LEVEL_BYTES = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN,
                 ERROR: DiagnosticStatus.ERROR, STALE: DiagnosticStatus.STALE,
                 MISMATCH: DiagnosticStatus.ERROR}
-_DECLARED_MODES = 3
-"""Modes whose tolerances are always declared (the paper's); a model with more modes gets
-the rest declared at start-up."""
 
-
-def _tolerance_spec(name: str) -> ParamSpec:
-    """An optional tolerance parameter (not set: the rule of galvo_sysid.monitor.drift)."""
-    if name in KINDS:
-        text = (f'relative tolerance of every {name} parameter without its own tolerance '
-                f'(0.01 = 1 %; not set: the built-in defaults)')
-    else:
-        kind = parameter_kind(name)
-        default = DEFAULT_TOLERANCES.get(name, DEFAULT_KIND_TOLERANCES.get(kind))
-        fallback = '' if kind == 'k0' else f'tolerances.{kind}, else '
-        text = (f'relative tolerance of {name} (0.01 = 1 %; not set: {fallback}'
-                f'{100 * float(default or 0):g} %)')
-    return ParamSpec(f'tolerances.{name}', None, text, 0.0, 1e6, exclusive_low=True)
-
-
-def tolerance_specs(n_modes: int, *, first_mode: int = 1) -> tuple[ParamSpec, ...]:
-    """The tolerance parameters of modes ``first_mode`` .. ``n_modes`` (from mode 1: with
-    ``tolerances.k0`` and the kinds first)."""  # noqa: D205, D209
-    names = [f'{prefix}{i}' for prefix in ('k', 'omega_', 'zeta_')
-             for i in range(max(1, first_mode), n_modes + 1)]
-    head = ['k0', *KINDS] if first_mode <= 1 else []
-    return tuple(_tolerance_spec(n) for n in (*head, *names))
-
-
-PARAMETERS = (
-    ParamSpec('model', '', 'plant-model file of the reference ("": the packaged model of the '
-              "paper's scanner, Table I); read at start-up", read_only=True),
-    *tolerance_specs(_DECLARED_MODES),
-    ParamSpec('warn_fraction', 0.5, 'a significant deviation past this fraction of its '
-              'tolerance warns', 0.0, 1.0),
-    ParamSpec('n_sigma', 3.0, 'deviations within this many standard deviations are noise',
-              0.0, 100.0),
-    ParamSpec('trend_windows', 8, 'windows in the drift trend test (0: off)', 0, 1000),
-    ParamSpec('trend_min_windows', 3, 'fewest windows before the trend test speaks', 3, 1000),
-    ParamSpec('trend_sigma', 4.0, 'trend slope significance needed [standard errors]',
-              0.0, 100.0),
-    ParamSpec('trend_fraction', 0.3, 'a trend is flagged once past this fraction of the '
-              'tolerance', 0.0, 1.0),
-    ParamSpec('step_fraction', 0.5, 'a jump between windows past this fraction of the '
-              'tolerance restarts the trend history', 0.0, 1e6),
-    ParamSpec('min_fit_percent', 75.0, 'windows fitting worse than this warn [%]', -1e9, 100.0),
-    ParamSpec('stale_timeout', 5.0, 'STALE after this long without a result [s]',
-              0.0, 1e6, exclusive_low=True),
-    ParamSpec('publish_rate', 1.0, 'diagnostics per second', 0.0, 1000.0, exclusive_low=True,
-              read_only=True),
-    ParamSpec('hardware_id', '', "the scanner's name in diagnostics (default: the namespace)"),
-)
+PARAMETERS = WATCHDOG_PARAMETERS
+"""The node's parameters (:data:`galvo_sysid.monitor.parameters.WATCHDOG_PARAMETERS`)."""
 
 
 class WatchdogNode(Node):
@@ -137,9 +80,9 @@ class WatchdogNode(Node):
         self.params = ParameterSet(self, PARAMETERS, validate=self._validate,
                                    apply=self._apply)
         self.reference = self._model(self.params.values['model'])
-        if self.reference.n_modes > _DECLARED_MODES:
+        if self.reference.n_modes > DECLARED_MODES:
             self.params.extend(tolerance_specs(self.reference.n_modes,
-                                               first_mode=_DECLARED_MODES + 1))
+                                               first_mode=DECLARED_MODES + 1))
         v = self.params.values
         self.task = WatchdogTask(monitor_from_parameters(v, model=self.reference),
                                  stale_timeout=v['stale_timeout'])
@@ -228,6 +171,7 @@ class WatchdogNode(Node):
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of ``watchdog``."""
     return run_node(WatchdogNode, args=sys.argv if args is None else args)
+
 
 if __name__ == '__main__':
     raise SystemExit(main())

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
@@ -14,8 +15,12 @@ from galvo_sysid.field.simulate import simulate_bag
 from galvo_sysid.ident.identify import identify_joint, pool_results
 from galvo_sysid.model import TAU
 from galvo_sysid.monitor.drift import DriftMonitor
-from galvo_sysid.monitor.online import fit_window
 from galvo_sysid.monitor.pairing import MoveWindower
+from galvo_sysid.monitor.scheduler import fit_window
+
+if TYPE_CHECKING:
+    from galvo_sysid.ident import IdentificationResult
+    from galvo_sysid.monitor.moves import Window
 
 
 @pytest.fixture(scope='module')
@@ -115,6 +120,27 @@ def test_parallel_fits_give_identical_results(bag: Path) -> None:
     two = identify_bag(bag, jobs=2)
     assert one.to_dict() == two.to_dict()
     assert len(one.windows) == 4
+
+
+def _fail_window_1(window: Window, **kwargs: Any) -> IdentificationResult:
+    """fit_window, but window 1 fails (module level: the forked children unpickle it)."""
+    if window.index == 1:
+        raise IdentificationError('no physical mode 2\n in its band')
+    return fit_window(window, **kwargs)
+
+
+def test_failed_windows_are_listed_in_the_same_place_whatever_the_jobs(
+        bag: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import galvo_sysid.monitor.scheduler
+
+    monkeypatch.setattr(galvo_sysid.monitor.scheduler, 'fit_window', _fail_window_1)
+    one = identify_bag(bag, jobs=1)
+    assert [w.window_index for w in one.windows] == [0, 2, 3]
+    reasons = {r['reason'] for r in one.rejected}
+    assert reasons == {'window 1 not identified: no physical mode 2 in its band'}
+    assert len(one.rejected) == 100
+    for jobs in (2, 3):
+        assert identify_bag(bag, jobs=jobs).to_dict() == one.to_dict()
 
 
 def test_partial_windows_and_progress(bag: Path) -> None:

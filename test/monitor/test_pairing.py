@@ -332,9 +332,9 @@ def test_windower_parameters_are_the_sysid_nodes() -> None:
     import inspect
 
     from galvo_sysid.monitor.pairing import WINDOWER_PARAMETERS
-    from galvo_sysid.nodes import sysid_node
+    from galvo_sysid.monitor.parameters import SYSID_PARAMETERS
 
-    declared = {p.name: p.default for p in sysid_node.PARAMETERS}
+    declared = {p.name: p.default for p in SYSID_PARAMETERS}
     assert set(WINDOWER_PARAMETERS) <= set(declared)
     assert set(WINDOWER_PARAMETERS) <= set(inspect.signature(MoveWindower).parameters)
     defaults = MoveWindower()

@@ -1,0 +1,268 @@
+"""The task objects the nodes wire: the logic of the sysid and watchdog nodes, without ROS.
+
+- :class:`SysidTask` ties a :class:`~galvo_sysid.monitor.pairing.MoveWindower` and a
+  :class:`~galvo_sysid.monitor.scheduler.WindowScheduler` together: ``add(half)`` never
+  blocks on a fit, rejections are reported grouped by reason through a
+  :class:`~galvo_sysid.monitor.ratelog.RateLimitedLog`, counters say what happened to every
+  move, and :meth:`SysidTask.health` says how identification goes (windows that do not match
+  the plant model are an error, said plainly: the scanner is not the one the model
+  describes).
+- :class:`WatchdogTask` keeps the watchdog's state: the latest verdict of its
+  :class:`~galvo_sysid.monitor.drift.DriftMonitor`, and STALE when no result came for a while.
+
+The nodes (:mod:`galvo_sysid.nodes.sysid_node`, :mod:`galvo_sysid.nodes.watchdog_node`) only
+convert messages and forward them; tests and benchmarks drive these objects directly.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import TYPE_CHECKING, Any
+
+from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.model.files import model_label
+from galvo_sysid.monitor.pairing import MoveWindower
+from galvo_sysid.monitor.ratelog import RateLimitedLog
+from galvo_sysid.monitor.rejections import summarize_rejections
+from galvo_sysid.monitor.scheduler import FitOutcome, WindowScheduler
+from galvo_sysid.monitor.verdict import ERROR, OK, STATUS_OK, WARN
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Mapping
+
+    from galvo_sysid.ident.result import IdentificationResult
+    from galvo_sysid.monitor.drift import DriftMonitor, ModalEstimate
+    from galvo_sysid.monitor.moves import MoveHalf, Window
+    from galvo_sysid.monitor.verdict import DriftVerdict
+
+__all__ = ['SysidTask', 'WatchdogTask', 'mismatch_message']
+
+
+def mismatch_message(reason: str, *, model_path: str | None) -> str:
+    """The one line that says data do not match a model file, and what to do.
+
+    Example: ``the data do not match model scanner.yaml: no physical mode 2 in the band ...;
+    run galvo-sysid commission``.
+    """
+    why = ' '.join(reason.split())
+    return (f'the data do not match model {model_label(model_path)}: {why}; run galvo-sysid '
+            f'commission')
+
+
+class SysidTask:
+    """The sysid node's logic: pair, window, fit off-thread, count and report.
+
+    Args:
+        fit: ``fit(window) -> IdentificationResult`` (see
+            :class:`~galvo_sysid.monitor.scheduler.WindowScheduler`).
+        on_result: Called with each :class:`~galvo_sysid.monitor.scheduler.FitOutcome` (on a
+            worker thread).
+        warn: Where warnings go (rate limited by the task).
+        windower: Keyword arguments of :class:`~galvo_sysid.monitor.pairing.MoveWindower`
+            (``sample_period``: the model's, so moves of another scanner are set aside).
+        queue_size: Windows waiting for a fit at most.
+        processes: Child processes for the fits (0: fit on a worker thread).
+        warnings_per_second: Most warning lines a second.
+        model_path: The plant-model file the fits use ('' or None: the packaged paper
+            model), for the messages.
+    """
+
+    def __init__(self, fit: Callable[[Window], IdentificationResult],
+                 on_result: Callable[[FitOutcome], None], *, warn: Callable[[str], None],
+                 windower: Mapping[str, Any] | None = None, queue_size: int = 8,
+                 processes: int = 0, warnings_per_second: int = 20,
+                 model_path: str | None = None) -> None:
+        self.windower = MoveWindower(**dict(windower or {}))
+        self._warn = RateLimitedLog(warn, per_second=warnings_per_second)
+        self._on_result = on_result
+        self.model_path = model_path or ''
+        self.fitter = WindowScheduler(fit, self._done, queue_size=queue_size,
+                                      processes=processes)
+        self.halves_received = 0
+        self.windows_completed = 0
+        self._last_input = time.monotonic()
+        self._lock = threading.Lock()
+        self.last_mismatch: str | None = None
+        """Why the latest window that did not match the model did not (None: none so far)."""
+        self.latest_mismatched = False
+        """Whether the latest finished window did not match the model."""
+
+    def add(self, half: MoveHalf) -> list[Window]:
+        """Take one half; queue the windows it completed (returned) and report rejections."""
+        self.halves_received += 1
+        self._last_input = time.monotonic()
+        resets = self.windower.resets
+        windows = self.windower.add(half)
+        if self.windower.resets != resets:
+            self._warn('stamps jumped back (a bag replay looping?): buffers reset',
+                       key='time jump')
+        self._report()
+        for w in windows:
+            self.windows_completed += 1
+            for old in self.fitter.submit(w):
+                self._warn(f'window {old.index} ({old.target_angle:g} deg, {old.moves} moves) '
+                           'dropped: identification queue full (fits slower than input)',
+                           key='queue full')
+        return windows
+
+    def set_aside(self, text: str) -> None:
+        """Report a message that could not even be converted (counted as one rejection)."""
+        self.windower.moves_rejected += 1
+        self._warn(f'message set aside: {text}', key='bad message')
+
+    def tick(self) -> None:
+        """Call periodically: expire unpaired halves when input has paused, flush the log.
+
+        While no input arrives, the data clock is assumed to advance at least as fast as
+        the wall clock, so a half whose partner never comes is reported within
+        ``pair_timeout`` (wall) seconds.
+        """
+        idle = time.monotonic() - self._last_input
+        w = self.windower
+        if w.pending and idle > w.pair_timeout:
+            w.expire(w.newest_stamp + idle)
+            self._report()
+        self._warn.flush()
+
+    def _report(self) -> None:
+        rejections = self.windower.pop_rejections()
+        if rejections:
+            for line in summarize_rejections(rejections):
+                self._warn(line, key=line.split(': ', 1)[-1])
+
+    def mismatch_text(self, reason: str) -> str:
+        """The line saying the data do not match this task's model (:func:`mismatch_message`)."""
+        return mismatch_message(reason, model_path=self.model_path)
+
+    def _done(self, outcome: FitOutcome) -> None:
+        w = outcome.window
+        with self._lock:
+            if outcome.result is not None:
+                self.latest_mismatched = False
+            elif outcome.mismatch:
+                self.latest_mismatched = True
+                self.last_mismatch = outcome.error or 'unknown reason'
+        if outcome.mismatch:
+            self._warn(f'window {w.index} ({w.target_angle:g} deg, {w.moves} moves) not '
+                       f'identified: {self.mismatch_text(outcome.error or "")}',
+                       key='model mismatch')
+        elif outcome.error is not None:
+            self._warn(f'window {w.index} ({w.target_angle:g} deg, {w.moves} moves) not '
+                       f'identified: {outcome.error}', key='fit failed')
+        self._on_result(outcome)
+
+    def stats(self) -> dict[str, int]:
+        """Counters: halves received, moves accepted/rejected (and of those, halves of
+        another sample period than the model's), windows identified / failed / not matching
+        the model / dropped, resets, queue."""  # noqa: D205, D209
+        w = self.windower
+        f = self.fitter
+        return {'halves_received': self.halves_received, 'moves_accepted': w.moves_accepted,
+                'moves_rejected': w.moves_rejected,
+                'halves_period_mismatched': w.period_mismatches, 'pending_halves': w.pending,
+                'open_windows': w.open_windows, 'windows_completed': self.windows_completed,
+                'windows_identified': f.fitted, 'windows_failed': f.failed,
+                'windows_mismatched': f.mismatched, 'windows_dropped': f.dropped,
+                'windows_waiting': f.waiting, 'resets': w.resets}
+
+    def health(self, since: Mapping[str, int], *,
+               now: Mapping[str, int] | None = None) -> tuple[int, str]:
+        """How identification goes between the counters ``since`` and ``now``.
+
+        Args:
+            since: Counters of an earlier :meth:`stats` (the last report's).
+            now: Counters now (default: :meth:`stats`).
+
+        Returns:
+            ``(level, message)``: ERROR (2) when windows did not match the model since then
+            or the latest window did not (or moves came with another sample period than the
+            model's), saying so with the reason; WARN (1) when moves were set aside or windows
+            failed or were dropped since then; else OK (0) with the windows identified.
+        """
+        now = self.stats() if now is None else now
+        # (counters of a windower replaced by new settings start again: never below 0)
+        new = {k: max(0, now[k] - since.get(k, 0)) for k in
+               ('moves_rejected', 'windows_failed', 'windows_dropped', 'windows_identified',
+                'windows_mismatched', 'halves_period_mismatched')}
+        with self._lock:
+            latest, why = self.latest_mismatched, self.last_mismatch
+        period = self.windower.period_mismatch
+        if new['halves_period_mismatched'] and period is not None:
+            return ERROR, (f'moves set aside since the last report: '
+                           f'{self.mismatch_text(period)}')
+        if new['windows_mismatched'] or latest:
+            count = new['windows_mismatched']
+            lead = f'{count} window(s) not identified since the last report: ' if count else \
+                'the latest window was not identified: '
+            return ERROR, lead + self.mismatch_text(why or 'unknown reason')
+        trouble = [f'{new["moves_rejected"]} move(s) set aside'] if new['moves_rejected'] else []
+        if new['windows_failed']:
+            trouble.append(f'{new["windows_failed"]} window(s) not identified (fit failed)')
+        if new['windows_dropped']:
+            trouble.append(f'{new["windows_dropped"]} window(s) dropped (fits too slow)')
+        if trouble:
+            return WARN, '; '.join(trouble) + ' since the last report'
+        return OK, (f'{now["windows_identified"]} windows identified, {now["moves_accepted"]} '
+                    f'moves used')
+
+    def close(self, *, timeout: float = 5.0) -> None:
+        """Finish the queued fits (up to ``timeout``) and stop the workers."""
+        self.fitter.close(timeout=timeout)
+
+
+class WatchdogTask:
+    """The watchdog's logic: judge each result, and say STALE when results stop coming.
+
+    Args:
+        monitor: The drift monitor judging each result.
+        stale_timeout: Seconds without a result (or since start) after which the state is
+            STALE.
+        clock: Monotonic clock [s] (for tests).
+    """
+
+    def __init__(self, monitor: DriftMonitor, *, stale_timeout: float = 5.0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        if not (stale_timeout > 0 and stale_timeout < float('inf')):
+            raise ConfigurationError(f'stale_timeout must be positive, got {stale_timeout}')
+        self.monitor = monitor
+        self.stale_timeout = float(stale_timeout)
+        self._clock = clock
+        self._start = clock()
+        self._last_time: float | None = None
+        self.last_verdict: DriftVerdict | None = None
+        self.windows_judged = 0
+        self._stale = False
+
+    @property
+    def age(self) -> float | None:
+        """Seconds since the last result (None before the first)."""
+        return None if self._last_time is None else self._clock() - self._last_time
+
+    def on_result(self, result: ModalEstimate, *, window_index: int, status: int = STATUS_OK,
+                  status_message: str = '') -> DriftVerdict:
+        """Judge a result (its ``status`` not OK: MISMATCH); the state is fresh again."""
+        verdict = self.monitor.assess(result, window_index=window_index, status=status,
+                                      status_message=status_message)
+        self.last_verdict = verdict
+        self._last_time = self._clock()
+        self.windows_judged += 1
+        self._stale = False
+        return verdict
+
+    def poll(self) -> tuple[DriftVerdict, bool]:
+        """The verdict to report now, and whether the state just turned STALE.
+
+        Before the first result the state is STALE ('no identification result yet'); the
+        transition is reported once ``stale_timeout`` has passed since start.
+        """
+        now = self._clock()
+        since = self._start if self._last_time is None else self._last_time
+        index = -1 if self.last_verdict is None else self.last_verdict.window_index
+        timed_out = now - since > self.stale_timeout
+        became = timed_out and not self._stale
+        if timed_out:
+            self._stale = True
+        if self.last_verdict is None or timed_out:
+            return self.monitor.stale(window_index=max(index, 0), age=self.age), became
+        return self.last_verdict, False
