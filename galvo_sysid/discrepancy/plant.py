@@ -386,30 +386,6 @@ class PlantSimulator:
                 d[k] = dk
         return np.ascontiguousarray(d.T)
 
-    # ------------------------------------------------------------------ nuisance
-
-    def free_responses(self) -> NDArray[np.float64]:
-        """(N, 2 n_modes + 1) outputs of the plant released from a non-rest state.
-
-        Columns: for each mode (rigid body first) the span of its free motion (decaying
-        cosine and sine; 1 and t for a free rigid body), and the response to a command pulse
-        one sample before the record (the command in flight when the record starts).
-        """
-        ph = self.physics
-        n_len = self.length
-        t = np.arange(n_len) * self.sample_period
-        if ph.pivot_frequency > 0:
-            rigid = [np.cos(ph.pivot_frequency * t), np.sin(ph.pivot_frequency * t)]
-        else:
-            rigid = [np.ones(n_len), t / (n_len * self.sample_period)]
-        cols = [*rigid]
-        if ph.natural_frequencies:
-            modes = mode_free_responses(ph.natural_frequencies, ph.damping_ratios,
-                                        sample_period=self.sample_period, length=n_len)
-            cols.extend(modes.reshape(-1, n_len))
-        cols.append(self._h_y[1:n_len + 1])
-        return np.stack(cols, axis=1)
-
 
 def mode_pulse_responses(natural_frequencies: ArrayLike, damping_ratios: ArrayLike, *,
                          gain: float = 1.0, lag: float = 0.0, delay: float = 0.0,
