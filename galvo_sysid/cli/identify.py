@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
 
         check_plot_path(args.plot)
     from galvo_sysid.model import load_model
-    from galvo_sysid.monitor.online import mismatch_message
+    from galvo_sysid.monitor.tasks import mismatch_message
 
     sysid: dict[str, Any] = {'window_size': 100, 'method': 'refined', 'na': 15, 'nb': 15,
                              'model': ''}

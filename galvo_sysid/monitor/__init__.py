@@ -24,8 +24,6 @@ The modules, by noun:
 - :mod:`~galvo_sysid.monitor.parameters`: the node parameters (names, defaults, ranges), the
   one source for the nodes, the command line and ``config/*.yaml``.
 
-(:mod:`~galvo_sysid.monitor.online` keeps the names it held before, for old imports.)
-
 The names below are loaded when first used, so that importing one module (say
 :mod:`~galvo_sysid.monitor.moves`) does not import them all.
 """

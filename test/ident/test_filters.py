@@ -77,7 +77,7 @@ def test_bad_coefficients() -> None:
 def test_identification_path_does_not_import_scipy_signal() -> None:
     code = ('import sys\n'
             'import galvo_sysid.field.offline, galvo_sysid.ident.identify\n'
-            'import galvo_sysid.monitor.online\n'
+            'import galvo_sysid.monitor.scheduler, galvo_sysid.monitor.tasks\n'
             'import galvo_sysid.ident.paper, galvo_sysid.ident.refine, galvo_sysid.field.bags\n'
             'print(sorted(m for m in sys.modules if m.startswith(("scipy.signal", '
             '"scipy.stats"))))\n')

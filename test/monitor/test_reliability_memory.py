@@ -27,8 +27,9 @@ from ros_graph import MOVES_QOS, RESULTS_QOS, Graph, counters, move_messages, rs
 from galvo_sysid.errors import InvalidDataError
 from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields
 from galvo_sysid.model import REFERENCE_MODEL
-from galvo_sysid.monitor.online import FitOutcome, SysidTask
 from galvo_sysid.monitor.pairing import MoveHalf, MoveWindower
+from galvo_sysid.monitor.scheduler import FitOutcome
+from galvo_sysid.monitor.tasks import SysidTask
 from galvo_sysid.sim.simulator import GalvoSimulator
 
 if TYPE_CHECKING:

@@ -1,7 +1,7 @@
 """Reliability under bad input, shown with hypothesis (issue 7, "Bad input").
 
 Pairing and buffering (galvo_sysid.monitor.pairing, galvo_sysid.interfaces.messages,
-galvo_sysid.monitor.online):
+galvo_sysid.monitor.tasks):
 
 - a stream of moves, each with at most one fault (NaN/Inf samples, empty or oversized record,
   lengths differing, zero angle, bad sample period, angles disagreeing, a missing partner, a
@@ -42,8 +42,9 @@ from galvo_sysid.ident.preprocess import validate_records
 from galvo_sysid.interfaces.messages import move_half_from_msg, result_from_msg
 from galvo_sysid.model import REFERENCE_MODEL
 from galvo_sysid.monitor.drift import DriftMonitor
-from galvo_sysid.monitor.online import FitOutcome, SysidTask
 from galvo_sysid.monitor.pairing import MoveHalf, MoveWindower, Rejection, Window
+from galvo_sysid.monitor.scheduler import FitOutcome
+from galvo_sysid.monitor.tasks import SysidTask
 from galvo_sysid.sim.simulator import simulate_window
 
 N = 48

@@ -169,15 +169,3 @@ def test_mismatch_message_names_the_model_file_and_the_way_out() -> None:
         'the data do not match model s.yaml: no physical mode 2 in the band; run galvo-sysid '
         'commission')
     assert 'model paper_table1 (packaged)' in mismatch_message('x', model_path='')
-
-
-def test_the_old_module_keeps_its_names() -> None:
-    from galvo_sysid.monitor import online, ratelog, scheduler, tasks
-
-    assert online.SysidTask is tasks.SysidTask
-    assert online.WatchdogTask is tasks.WatchdogTask
-    assert online.mismatch_message is tasks.mismatch_message
-    assert online.WindowFitter is scheduler.WindowScheduler
-    assert online.fit_window is scheduler.fit_window
-    assert online.FitOutcome is scheduler.FitOutcome
-    assert online.RateLimitedLog is ratelog.RateLimitedLog
