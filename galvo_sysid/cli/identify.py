@@ -108,11 +108,8 @@ def run(args: argparse.Namespace) -> int:
     Raises:
         GalvoSysidError: Bad bag, model or parameter file (the caller prints one line).
     """
-    from galvo_sysid.field.offline import (
-        identify_bag,
-        load_node_parameters,
-        monitor_from_parameters,
-    )
+    from galvo_sysid.field.offline import identify_bag, load_node_parameters
+    from galvo_sysid.monitor.reference import monitor_from_parameters
 
     if args.plot:  # say a bad file name before the work, not after
         from galvo_sysid.field.plots import check_plot_path

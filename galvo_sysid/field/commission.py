@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from galvo_sysid.ident.commission import Commissioning
-    from galvo_sysid.monitor.pairing import Window
+    from galvo_sysid.monitor.moves import Window
 
 __all__ = ['BagCommissioning', 'commission_bag', 'commission_figure', 'format_commissioning']
 

@@ -1,14 +1,14 @@
 """Offline identification of a bag: what ``galvo-sysid identify`` runs (no ROS graph).
 
 The moves of the bag go through exactly the objects the live nodes use, in the same order:
-each ``MoveSamples`` message becomes a :class:`~galvo_sysid.monitor.pairing.MoveHalf`
-(:mod:`galvo_sysid.interfaces.messages`), :class:`~galvo_sysid.monitor.pairing.MoveWindower` pairs
-them and cuts
-windows of ``window_size`` moves per signed target angle,
+each ``MoveSamples`` message becomes a :class:`~galvo_sysid.monitor.moves.MoveHalf`
+(:mod:`galvo_sysid.interfaces.messages`), :class:`~galvo_sysid.monitor.pairing.MoveWindower`
+pairs them and cuts windows of ``window_size`` moves per signed target angle,
 :func:`~galvo_sysid.ident.identify.identify_window` fits each window and
-:class:`~galvo_sysid.monitor.drift.DriftMonitor` judges it. At the end of the bag, every unfinished
-window holding at least ``min_partial`` moves (default: half a window) is identified too and
-marked partial. Moves that cannot be used are listed with the reason; the rest is used.
+:class:`~galvo_sysid.monitor.drift.DriftMonitor` judges it. At the end of the bag, every
+unfinished window holding at least ``min_partial`` moves (default: half a window) is
+identified too and marked partial. Moves that cannot be used are listed with the reason; the
+rest is used.
 
 The pooled estimate (the bag's plant, from all windows; the nodes have no such thing) is, for
 the refined method, :func:`~galvo_sysid.ident.identify.identify_joint`: one fit of the modal model
@@ -39,8 +39,7 @@ from typing import TYPE_CHECKING, Any
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError
 from galvo_sysid.field.bags import BagInfo, BagReader, SetAside
 from galvo_sysid.model import model_label
-from galvo_sysid.monitor.drift import monitor_from_parameters
-from galvo_sysid.monitor.pairing import WINDOWER_PARAMETERS
+from galvo_sysid.monitor.parameters import WINDOWER_PARAMETERS
 
 if TYPE_CHECKING:
     import os
@@ -48,21 +47,21 @@ if TYPE_CHECKING:
 
     from galvo_sysid.ident.result import IdentificationResult
     from galvo_sysid.model import ModalModel, PlantModel
-    from galvo_sysid.monitor.drift import DriftMonitor, DriftVerdict
-    from galvo_sysid.monitor.pairing import Rejection, Window
+    from galvo_sysid.monitor.drift import DriftMonitor
+    from galvo_sysid.monitor.moves import Window
+    from galvo_sysid.monitor.rejections import Rejection
     from galvo_sysid.monitor.scheduler import FitOutcome
+    from galvo_sysid.monitor.verdict import DriftVerdict
 
 __all__ = [
     'JOINT_WINDOWS',
     'METHODS',
     'POOLINGS',
-    'WINDOWER_PARAMETERS',
     'BagIdentification',
     'MismatchedWindow',
     'WindowResult',
     'identify_bag',
     'load_node_parameters',
-    'monitor_from_parameters',
     'rejection_to_dict',
 ]
 
@@ -289,8 +288,9 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
             node's parameter ``na``.
         nb: ARX order of B[q], as the sysid node's ``nb``.
         windower: Further :class:`~galvo_sysid.monitor.pairing.MoveWindower` settings, as the
-            sysid node's parameters of :data:`WINDOWER_PARAMETERS` (``window_size`` here is
-            overridden by the argument).
+            sysid node's parameters of
+            :data:`~galvo_sysid.monitor.parameters.WINDOWER_PARAMETERS` (``window_size`` here
+            is overridden by the argument).
         jobs: Windows fitted in parallel by this many forked processes (1: on one thread of
             this process), by :class:`~galvo_sysid.monitor.scheduler.WindowScheduler`, the
             sysid node's. The results do not depend on it: each window's fit is the same

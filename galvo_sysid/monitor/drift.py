@@ -2,8 +2,8 @@
 
 :class:`DriftMonitor` is a small task object (like the monitors of ros/diagnostics): the
 watchdog node feeds it each window's identification result and publishes the
-:class:`DriftVerdict`; ``galvo-sysid identify --json`` uses the same object for each window's
-``drift`` entry.
+:class:`~galvo_sysid.monitor.verdict.DriftVerdict`; ``galvo-sysid identify --json`` uses the
+same object for each window's ``drift`` entry.
 
 Each parameter's relative deviation ``d = (identified - reference) / reference`` is judged
 against a relative tolerance and against the estimate's own noise: a deviation is significant
@@ -52,15 +52,13 @@ import numpy as np
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model import REFERENCE_MODEL, ModalModel, model_label
-from galvo_sysid.monitor.parameters import MONITOR_PARAMETERS, WATCHDOG_PARAMETERS, defaults
-from galvo_sysid.monitor.reference import monitor_from_parameters, reference_from_parameters
+from galvo_sysid.monitor.parameters import WATCHDOG_PARAMETERS, defaults
 from galvo_sysid.monitor.tolerances import (
     DEFAULT_KIND_NOISE_FLOOR,
     DEFAULT_KIND_TOLERANCES,
     DEFAULT_NOISE_FLOOR,
     DEFAULT_TOLERANCES,
     KINDS,
-    parameter_kind,
     parameter_names,
     resolve,
 )
@@ -71,7 +69,6 @@ from galvo_sysid.monitor.verdict import (
     OK,
     STALE,
     STATUS_FAILED,
-    STATUS_MISMATCH,
     STATUS_NAMES,
     STATUS_OK,
     WARN,
@@ -81,35 +78,7 @@ from galvo_sysid.monitor.verdict import (
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
 
-__all__ = [
-    'DEFAULT_KIND_NOISE_FLOOR',
-    'DEFAULT_KIND_TOLERANCES',
-    'DEFAULT_NOISE_FLOOR',
-    'DEFAULT_TOLERANCES',
-    'ERROR',
-    'KINDS',
-    'LEVEL_NAMES',
-    'MISMATCH',
-    'MONITOR_PARAMETERS',
-    'OK',
-    'STALE',
-    'STATUS_FAILED',
-    'STATUS_MISMATCH',
-    'STATUS_NAMES',
-    'STATUS_OK',
-    'WARN',
-    'DriftMonitor',
-    'DriftVerdict',
-    'ModalEstimate',
-    'monitor_from_parameters',
-    'parameter_kind',
-    'parameter_names',
-    'reference_from_parameters',
-]
-# Re-exported here, where they were defined before: the levels, statuses and DriftVerdict
-# (galvo_sysid.monitor.verdict), the names, kinds and default tolerances
-# (galvo_sysid.monitor.tolerances), MONITOR_PARAMETERS (galvo_sysid.monitor.parameters) and
-# the monitor from watchdog parameters (galvo_sysid.monitor.reference).
+__all__ = ['DriftMonitor', 'ModalEstimate']
 
 _DEFAULTS = defaults('watchdog')
 """The watchdog node's parameter defaults: the monitor's defaults (one source)."""
@@ -124,7 +93,7 @@ class ModalEstimate(Protocol):
     """What the monitor reads from an identification result (IdentificationResult fits).
 
     An optional ``resolved`` attribute (per mode, as
-    :attr:`~galvo_sysid.ident.identify.IdentificationResult.resolved`) is read too: the
+    :attr:`~galvo_sysid.ident.result.IdentificationResult.resolved`) is read too: the
     parameters of an unresolved mode are not judged.
     """
 
@@ -176,7 +145,8 @@ class DriftMonitor:
         tolerances: Relative tolerance per parameter name or kind (``'k'``, ``'omega'``,
             ``'zeta'``); the rest take the defaults (see the module docs for the rule).
         noise_floor: Relative window-to-window scatter per parameter name or kind; the rest
-            take :data:`DEFAULT_NOISE_FLOOR`, then :data:`DEFAULT_KIND_NOISE_FLOOR`.
+            take :data:`~galvo_sysid.monitor.tolerances.DEFAULT_NOISE_FLOOR`, then
+            :data:`~galvo_sysid.monitor.tolerances.DEFAULT_KIND_NOISE_FLOOR`.
         reference_name: How messages name the reference (its model file).
         warn_fraction: Fraction of the tolerance beyond which a significant deviation warns.
         n_sigma: A deviation within ``n_sigma`` standard deviations (reported std combined
@@ -279,8 +249,8 @@ class DriftMonitor:
         Args:
             result: The window's identification result.
             window_index: Its window number.
-            status: The result's status (:data:`STATUS_OK`, ...); not OK gives a MISMATCH
-                verdict (the parameters are not judged).
+            status: The result's status (:data:`~galvo_sysid.monitor.verdict.STATUS_OK`,
+                ...); not OK gives a MISMATCH verdict (the parameters are not judged).
             status_message: Why the status is not OK.
 
         A result with another number of modes than the reference gives a MISMATCH verdict

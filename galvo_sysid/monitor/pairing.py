@@ -2,15 +2,17 @@
 
 A positioning move arrives as two halves (``MoveSamples`` on ``galvo/current`` and on
 ``galvo/encoder``) that share a ``move_id``. :class:`MoveWindower` pairs the halves, checks
-them, buffers the complete moves per signed target angle and hands out a :class:`Window`
-every ``window_size`` moves of one angle: what the identification averages. The sysid node
-and ``galvo-sysid identify`` (bags) both use it, so both give the same windows.
+them, buffers the complete moves per signed target angle and hands out a
+:class:`~galvo_sysid.monitor.moves.Window` every ``window_size`` moves of one angle: what the
+identification averages. The sysid node and ``galvo-sysid identify`` (bags) both use it, so
+both give the same windows.
 
 Everything is decided from message stamps, never from arrival time: a half is unpaired when
 the newest stamp seen is ``pair_timeout`` past its own, and a stamp that jumps back by more than
 ``time_jump`` (a bag replay looping) resets all buffers so that old and new moves never mix.
 
-Moves that cannot be used are set aside as :class:`Rejection` records, one per move, said once
+Moves that cannot be used are set aside as
+:class:`~galvo_sysid.monitor.rejections.Rejection` records, one per move, said once
 (the partner of a rejected half is dropped silently). Memory is bounded: at most
 ``max_pending`` unpaired halves, ``max_windows`` open windows and ``max_buffered_samples``
 buffered samples; beyond that the oldest pending half or the least recently fed window is
@@ -28,24 +30,13 @@ import numpy as np
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.monitor.moves import SIGNALS, MoveHalf, Window
-from galvo_sysid.monitor.parameters import WINDOWER_PARAMETERS, defaults
-from galvo_sysid.monitor.rejections import Rejection, summarize_rejections
+from galvo_sysid.monitor.parameters import defaults
+from galvo_sysid.monitor.rejections import Rejection
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
-__all__ = [
-    'SIGNALS',
-    'WINDOWER_PARAMETERS',
-    'MoveHalf',
-    'MoveWindower',
-    'Rejection',
-    'Window',
-    'summarize_rejections',
-]
-# SIGNALS, MoveHalf, Window (galvo_sysid.monitor.moves), Rejection, summarize_rejections
-# (galvo_sysid.monitor.rejections) and WINDOWER_PARAMETERS (galvo_sysid.monitor.parameters)
-# are re-exported here, where they were defined before.
+__all__ = ['MoveWindower']
 
 _DEFAULTS = defaults('sysid')
 """The sysid node's parameter defaults: the windower's defaults (one source)."""
@@ -70,8 +61,9 @@ class MoveWindower:
     """Pair move halves by move_id and collect windows of moves per signed target angle.
 
     Pure logic, no ROS; bounded memory; decides from stamps, not from arrival time. The
-    settings of :data:`WINDOWER_PARAMETERS` are sysid node parameters of the same name, and
-    their defaults are those parameters' (:mod:`galvo_sysid.monitor.parameters`).
+    settings of :data:`~galvo_sysid.monitor.parameters.WINDOWER_PARAMETERS` are sysid node
+    parameters of the same name, and their defaults are those parameters'
+    (:mod:`galvo_sysid.monitor.parameters`).
 
     Args:
         window_size: Moves per window (>= 2).

@@ -14,13 +14,12 @@ from typing import TYPE_CHECKING, Any
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model import PlantModel, load_model, model_label
+from galvo_sysid.monitor.drift import DriftMonitor
 from galvo_sysid.monitor.parameters import MONITOR_PARAMETERS
 from galvo_sysid.monitor.tolerances import KINDS, split_parameter_name
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
-
-    from galvo_sysid.monitor.drift import DriftMonitor
 
 __all__ = ['monitor_from_parameters', 'reference_from_parameters']
 
@@ -66,9 +65,6 @@ def monitor_from_parameters(values: Mapping[str, Any], *,
             name, or a bad model file.
         InvalidDataError: The model file cannot be read.
     """
-    # imported here: galvo_sysid.monitor.drift re-exports this function
-    from galvo_sysid.monitor.drift import DriftMonitor
-
     reference = reference_from_parameters(values) if model is None else model
     tolerances: dict[str, float] = {}
     for key, value in values.items():

@@ -29,7 +29,7 @@ from galvo_sysid.field.bags import (
     msg_search_dirs,
     stamp_to_ns,
 )
-from galvo_sysid.monitor.pairing import MoveHalf
+from galvo_sysid.monitor.moves import MoveHalf
 
 PERIOD = 1e-5
 

@@ -97,7 +97,7 @@ def test_inverse_variance_pooling_and_the_fallback(bag: Path, monkeypatch: pytes
 
 def test_joint_windows_stay_spread_over_the_angles() -> None:
     from galvo_sysid.field.offline import _keep
-    from galvo_sysid.monitor.pairing import Window
+    from galvo_sysid.monitor.moves import Window
 
     def window(index: int, angle: float, moves: int = 5) -> Window:
         data = np.zeros((moves, 64))
@@ -189,7 +189,8 @@ def _monitor_settings(monitor: DriftMonitor) -> dict:
 
 
 def test_defaults_are_the_nodes_defaults() -> None:
-    from galvo_sysid.field.offline import WINDOWER_PARAMETERS, monitor_from_parameters
+    from galvo_sysid.monitor.parameters import WINDOWER_PARAMETERS
+    from galvo_sysid.monitor.reference import monitor_from_parameters
     from galvo_sysid.nodes import sysid_node, watchdog_node
 
     watchdog = {p.name: p.default for p in watchdog_node.PARAMETERS}
@@ -204,8 +205,9 @@ def test_defaults_are_the_nodes_defaults() -> None:
 
 
 def test_parameter_files(tmp_path: Path, repo: Path) -> None:
-    from galvo_sysid.field.offline import load_node_parameters, monitor_from_parameters
+    from galvo_sysid.field.offline import load_node_parameters
     from galvo_sysid.model import PAPER_MODEL, REFERENCE_MODEL, ModalModel, save_model
+    from galvo_sysid.monitor.reference import monitor_from_parameters
 
     values = load_node_parameters(repo / 'config' / 'watchdog.yaml', 'watchdog')
     monitor = monitor_from_parameters(values)

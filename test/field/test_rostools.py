@@ -133,7 +133,7 @@ def test_record_identify_round_trip_on_live_driver(venv_bin: Path, tmp_path: Pat
     # the recorded messages are the driver's: the simulator with the same seed (to rounding:
     # the driver's process may sum in another order, e.g. BLAS threads)
     from galvo_sysid.field.bags import BagReader
-    from galvo_sysid.monitor.pairing import MoveHalf
+    from galvo_sysid.monitor.moves import MoveHalf
     from galvo_sysid.sim.simulator import GalvoSimulator
 
     expected = {m.move_id: m for m in GalvoSimulator(seed=11).moves(angles=[0.3],

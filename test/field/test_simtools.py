@@ -12,7 +12,7 @@ from galvo_sysid.field.bags import BagReader
 from galvo_sysid.field.offline import identify_bag
 from galvo_sysid.field.simulate import parse_drift, parse_step, simulate_bag
 from galvo_sysid.model import Drift, StepChange
-from galvo_sysid.monitor.pairing import MoveHalf
+from galvo_sysid.monitor.moves import MoveHalf
 from galvo_sysid.sim.simulator import GalvoSimulator
 
 

@@ -29,7 +29,8 @@ from galvo_sysid.interfaces.messages import (
     verdict_from_msg,
 )
 from galvo_sysid.model import REFERENCE_MODEL
-from galvo_sysid.monitor.drift import MISMATCH, STATUS_MISMATCH, STATUS_OK, DriftMonitor
+from galvo_sysid.monitor.drift import DriftMonitor
+from galvo_sysid.monitor.verdict import MISMATCH, STATUS_MISMATCH, STATUS_OK
 
 RESULT = IdentificationResult(
     target_angle=-0.9, moves=100, input_delay=1.6e-5, lag_time_constant=6e-6,
@@ -115,7 +116,7 @@ def test_modal_parameters_round_trip() -> None:
 
 
 def test_status_constants_match_the_messages() -> None:
-    from galvo_sysid.monitor.drift import LEVEL_NAMES, STATUS_FAILED
+    from galvo_sysid.monitor.verdict import LEVEL_NAMES, STATUS_FAILED
 
     assert (ModalParameters.STATUS_OK, ModalParameters.STATUS_MISMATCH,
             ModalParameters.STATUS_FAILED) == (STATUS_OK, STATUS_MISMATCH, STATUS_FAILED)

@@ -11,10 +11,14 @@ import pytest
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model import REFERENCE_MODEL, ModalModel
-from galvo_sysid.monitor.drift import (
+from galvo_sysid.monitor.drift import DriftMonitor
+from galvo_sysid.monitor.tolerances import (
     DEFAULT_KIND_TOLERANCES,
     DEFAULT_NOISE_FLOOR,
     DEFAULT_TOLERANCES,
+    parameter_names,
+)
+from galvo_sysid.monitor.verdict import (
     ERROR,
     MISMATCH,
     OK,
@@ -22,8 +26,6 @@ from galvo_sysid.monitor.drift import (
     STATUS_FAILED,
     STATUS_MISMATCH,
     WARN,
-    DriftMonitor,
-    parameter_names,
 )
 
 NAMES = parameter_names(3)
@@ -246,7 +248,7 @@ def modes_model(n: int) -> ModalModel:
 def test_tolerance_rule_with_a_five_mode_model() -> None:
     """Own entry, else the kind's, else the built-in per-name default (modes 1-3), else the
     built-in kind default: any number of modes works."""
-    from galvo_sysid.monitor.drift import monitor_from_parameters
+    from galvo_sysid.monitor.reference import monitor_from_parameters
 
     ref = modes_model(5)
     plain = DriftMonitor(reference=ref)

@@ -10,7 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.monitor.pairing import MoveHalf, MoveWindower, summarize_rejections
+from galvo_sysid.monitor.moves import MoveHalf
+from galvo_sysid.monitor.pairing import MoveWindower
+from galvo_sysid.monitor.rejections import summarize_rejections
 
 N = 64
 DT = 1e-5
@@ -331,8 +333,7 @@ def test_lost_messages_windows_complete_from_the_moves_that_arrived() -> None:
 def test_windower_parameters_are_the_sysid_nodes() -> None:
     import inspect
 
-    from galvo_sysid.monitor.pairing import WINDOWER_PARAMETERS
-    from galvo_sysid.monitor.parameters import SYSID_PARAMETERS
+    from galvo_sysid.monitor.parameters import SYSID_PARAMETERS, WINDOWER_PARAMETERS
 
     declared = {p.name: p.default for p in SYSID_PARAMETERS}
     assert set(WINDOWER_PARAMETERS) <= set(declared)

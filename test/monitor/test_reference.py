@@ -58,16 +58,3 @@ def test_reference_from_parameters() -> None:
     assert reference_from_parameters({'model': ''}) == PAPER_MODEL
     with pytest.raises(ConfigurationError, match='must be a file name'):
         reference_from_parameters({'model': 3})
-
-
-def test_the_drift_module_keeps_its_names() -> None:
-    from galvo_sysid.monitor import drift, reference, tolerances, verdict
-
-    assert drift.monitor_from_parameters is reference.monitor_from_parameters
-    assert drift.reference_from_parameters is reference.reference_from_parameters
-    assert drift.MONITOR_PARAMETERS is MONITOR_PARAMETERS
-    assert drift.DriftVerdict is verdict.DriftVerdict
-    assert (drift.OK, drift.WARN, drift.ERROR, drift.STALE, drift.MISMATCH) == (0, 1, 2, 3, 4)
-    assert drift.STATUS_MISMATCH is verdict.STATUS_MISMATCH
-    assert drift.DEFAULT_TOLERANCES is tolerances.DEFAULT_TOLERANCES
-    assert drift.parameter_names is tolerances.parameter_names

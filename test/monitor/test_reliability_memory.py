@@ -27,7 +27,8 @@ from ros_graph import MOVES_QOS, RESULTS_QOS, Graph, counters, move_messages, rs
 from galvo_sysid.errors import InvalidDataError
 from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields
 from galvo_sysid.model import REFERENCE_MODEL
-from galvo_sysid.monitor.pairing import MoveHalf, MoveWindower
+from galvo_sysid.monitor.moves import MoveHalf
+from galvo_sysid.monitor.pairing import MoveWindower
 from galvo_sysid.monitor.scheduler import FitOutcome
 from galvo_sysid.monitor.tasks import SysidTask
 from galvo_sysid.sim.simulator import GalvoSimulator
@@ -36,7 +37,7 @@ if TYPE_CHECKING:
     from collections.abc import Iterator
 
     from galvo_sysid.ident.identify import IdentificationResult
-    from galvo_sysid.monitor.pairing import Window
+    from galvo_sysid.monitor.moves import Window
 
 N = 512
 DT = 1e-5

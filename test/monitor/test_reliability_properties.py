@@ -42,7 +42,9 @@ from galvo_sysid.ident.preprocess import validate_records
 from galvo_sysid.interfaces.messages import move_half_from_msg, result_from_msg
 from galvo_sysid.model import REFERENCE_MODEL
 from galvo_sysid.monitor.drift import DriftMonitor
-from galvo_sysid.monitor.pairing import MoveHalf, MoveWindower, Rejection, Window
+from galvo_sysid.monitor.moves import MoveHalf, Window
+from galvo_sysid.monitor.pairing import MoveWindower
+from galvo_sysid.monitor.rejections import Rejection
 from galvo_sysid.monitor.scheduler import FitOutcome
 from galvo_sysid.monitor.tasks import SysidTask
 from galvo_sysid.sim.simulator import simulate_window

@@ -38,7 +38,7 @@ if TYPE_CHECKING:
 
     from rosbags.interfaces import Connection
 
-    from galvo_sysid.monitor.pairing import MoveHalf
+    from galvo_sysid.monitor.moves import MoveHalf
 
 __all__ = ['BagInfo', 'BagReader', 'RawMessage', 'SetAside', 'TopicInfo']
 
@@ -300,7 +300,7 @@ class BagReader(BagFile):
         return found['current'], found['encoder']
 
     def move_halves(self, *, namespace: str | None = None) -> Iterator[MoveHalf | SetAside]:
-        """Yield each ``MoveSamples`` message as a :class:`~galvo_sysid.monitor.pairing.MoveHalf`.
+        """Yield each ``MoveSamples`` message as a :class:`~galvo_sysid.monitor.moves.MoveHalf`.
 
         A message that cannot be decoded or converted is yielded as :class:`SetAside`
         instead; reading goes on.
