@@ -52,10 +52,7 @@ if TYPE_CHECKING:
 
     from galvo_sysid.sim.simulator import Move
 
-__all__ = ['PARAMETERS', 'DriverNode', 'PlantChanges', 'main', 'simulator_config']
-
-PARAMETERS = DRIVER_PARAMETERS
-"""The node's parameters (:data:`galvo_sysid.monitor.parameters.DRIVER_PARAMETERS`)."""
+__all__ = ['DriverNode', 'PlantChanges', 'main', 'simulator_config']
 
 
 def _effects(text: str) -> tuple[Effect, ...]:
@@ -145,7 +142,7 @@ class DriverNode(Node):
         super().__init__('galvo_driver', **kwargs)
         self.log = logger(self)
         self._lock = threading.Lock()
-        self.params = ParameterSet(self, PARAMETERS, validate=_validate, apply=self._apply)
+        self.params = ParameterSet(self, DRIVER_PARAMETERS, validate=_validate, apply=self._apply)
         v = self.params.values
         self.sim = GalvoSimulator(config=simulator_config(v), seed=v['seed'])
         self.sim.check_angles(v['angles'])

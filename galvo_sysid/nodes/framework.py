@@ -3,8 +3,7 @@
 The parameters themselves (names, defaults, ranges) are :mod:`galvo_sysid.monitor.parameters`
 and the topic names :mod:`galvo_sysid.interfaces.topics` (both without ROS); this module
 declares the parameters with their ROS descriptors (:func:`descriptor`) and checks changes
-(:class:`ParameterSet`). ``ParamSpec``, ``RELIABILITY`` and the topic names are re-exported
-here, where they were defined before.
+(:class:`ParameterSet`).
 """
 
 from __future__ import annotations
@@ -25,14 +24,6 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.utilities import try_shutdown
 
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError
-from galvo_sysid.interfaces.topics import (
-    CURRENT_TOPIC,
-    DIAGNOSTICS_TOPIC,
-    DRIFT_TOPIC,
-    ENCODER_TOPIC,
-    RESULT_TOPIC,
-)
-from galvo_sysid.monitor.parameters import RELIABILITY, ParamSpec
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -41,14 +32,9 @@ if TYPE_CHECKING:
     from rclpy.node import Node
     from rclpy.parameter import Parameter
 
+    from galvo_sysid.monitor.parameters import ParamSpec
+
 __all__ = [
-    'CURRENT_TOPIC',
-    'DIAGNOSTICS_TOPIC',
-    'DRIFT_TOPIC',
-    'ENCODER_TOPIC',
-    'RELIABILITY',
-    'RESULT_TOPIC',
-    'ParamSpec',
     'ParameterSet',
     'descriptor',
     'diagnostics_qos',

@@ -60,13 +60,10 @@ from galvo_sysid.nodes.framework import (
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ['PARAMETERS', 'SysidNode', 'main']
+__all__ = ['SysidNode', 'main']
 
 _LEVEL_BYTES = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN,
                 ERROR: DiagnosticStatus.ERROR}
-
-PARAMETERS = SYSID_PARAMETERS
-"""The node's parameters (:data:`galvo_sysid.monitor.parameters.SYSID_PARAMETERS`)."""
 
 
 def _validate(values: dict[str, Any]) -> str | None:
@@ -85,7 +82,7 @@ class SysidNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('sysid', **kwargs)
         self.log = logger(self)
-        self.params = ParameterSet(self, PARAMETERS, validate=_validate, apply=self._apply)
+        self.params = ParameterSet(self, SYSID_PARAMETERS, validate=_validate, apply=self._apply)
         v = self.params.values
         self.model: PlantModel = load_model(v['model'] or None)
         self.results = self.create_publisher(ModalParameters, RESULT_TOPIC, results_qos())

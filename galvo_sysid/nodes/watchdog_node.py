@@ -59,15 +59,11 @@ from galvo_sysid.nodes.framework import (
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ['PARAMETERS', 'WatchdogNode', 'main', 'tolerance_specs']
-# tolerance_specs (galvo_sysid.monitor.parameters) is re-exported here, where it was defined.
+__all__ = ['WatchdogNode', 'main']
 
 _LEVEL_BYTES = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN,
                 ERROR: DiagnosticStatus.ERROR, STALE: DiagnosticStatus.STALE,
                 MISMATCH: DiagnosticStatus.ERROR}
-
-PARAMETERS = WATCHDOG_PARAMETERS
-"""The node's parameters (:data:`galvo_sysid.monitor.parameters.WATCHDOG_PARAMETERS`)."""
 
 
 class WatchdogNode(Node):
@@ -77,7 +73,7 @@ class WatchdogNode(Node):
         super().__init__('watchdog', **kwargs)
         self.log = logger(self)
         self._models: dict[str, PlantModel] = {}
-        self.params = ParameterSet(self, PARAMETERS, validate=self._validate,
+        self.params = ParameterSet(self, WATCHDOG_PARAMETERS, validate=self._validate,
                                    apply=self._apply)
         self.reference = self._model(self.params.values['model'])
         if self.reference.n_modes > DECLARED_MODES:

@@ -189,14 +189,13 @@ def _monitor_settings(monitor: DriftMonitor) -> dict:
 
 
 def test_defaults_are_the_nodes_defaults() -> None:
-    from galvo_sysid.monitor.parameters import WINDOWER_PARAMETERS
+    from galvo_sysid.monitor.parameters import WINDOWER_PARAMETERS, defaults
     from galvo_sysid.monitor.reference import monitor_from_parameters
-    from galvo_sysid.nodes import sysid_node, watchdog_node
 
-    watchdog = {p.name: p.default for p in watchdog_node.PARAMETERS}
+    watchdog = defaults('watchdog')
     assert _monitor_settings(monitor_from_parameters(watchdog)) == \
         _monitor_settings(DriftMonitor())  # what identify_bag uses without parameters
-    sysid = {p.name: p.default for p in sysid_node.PARAMETERS}
+    sysid = defaults('sysid')
     assert (sysid['method'], sysid['na'], sysid['nb'], sysid['window_size']) == \
         ('refined', 15, 15, 100)
     defaults = MoveWindower()
