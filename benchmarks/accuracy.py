@@ -12,7 +12,7 @@ instead), each window identified by
 then prints the median and 90th-percentile |relative error| per parameter (at 1 psi and over
 all angles), the time per window (wall clock and CPU), the estimated amplifier lag, how well
 the reported std match the errors, and the pooled estimate of each seed's 19 windows, both
-:func:`galvo_sysid.ident.identify.pool_results` (inverse-variance) and
+:func:`galvo_sysid.ident.pool.pool_results` (inverse-variance) and
 :func:`galvo_sysid.ident.identify.identify_joint` (one fit to all windows), against issue 3's
 targets.
 
@@ -50,12 +50,9 @@ from numpy.typing import NDArray
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from galvo_sysid.errors import GalvoSysidError
-from galvo_sysid.ident.identify import (
-    IdentificationResult,
-    identify_joint,
-    identify_window,
-    pool_results,
-)
+from galvo_sysid.ident.identify import identify_joint, identify_window
+from galvo_sysid.ident.pool import pool_results
+from galvo_sysid.ident.result import IdentificationResult
 from galvo_sysid.model import PAPER_ANGLES, PAPER_TABLE_II, PSI, REFERENCE_MODEL, TAU
 
 NAMES = tuple(REFERENCE_MODEL.parameters())

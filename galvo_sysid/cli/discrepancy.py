@@ -106,8 +106,9 @@ def run(args: argparse.Namespace) -> int:
     Raises:
         GalvoSysidError: Bad bag, model or data (the caller prints one line).
     """
+    from galvo_sysid.discrepancy.moves import read_moves
     from galvo_sysid.discrepancy.report import format_result, write_report
-    from galvo_sysid.discrepancy.workflow import find_discrepancy, read_moves
+    from galvo_sysid.discrepancy.workflow import find_discrepancy
     from galvo_sysid.model.files import load_model, save_model
 
     model = load_model(args.model)

@@ -26,13 +26,12 @@ from typing import TYPE_CHECKING
 
 from galvo_sysid import limit_blas_threads
 from galvo_sysid.cli import echo, identify, info, record, replay, simulate
-from galvo_sysid.cli.common import one_line, parse_angle
-from galvo_sysid.cli.identify import format_identification
+from galvo_sysid.cli.common import one_line
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ['COMMANDS', 'PLUGINS', 'build_parser', 'format_identification', 'main', 'parse_angle']
+__all__ = ['COMMANDS', 'PLUGINS', 'build_parser', 'main']
 
 PROG = 'galvo-sysid'
 

@@ -20,7 +20,6 @@ from typing import TYPE_CHECKING, Any
 from galvo_sysid.discrepancy.candidates import CandidateFit, _Fitter
 from galvo_sysid.discrepancy.compare import Comparison, Diagnostics
 from galvo_sysid.discrepancy.localise import Localisation, localise
-from galvo_sysid.discrepancy.moves import read_moves
 from galvo_sysid.discrepancy.spectra import _finite_or_none
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model.effects import EFFECT_NAMES, EFFECTS
@@ -35,7 +34,6 @@ __all__ = [
     'DiscrepancyResult',
     'Step',
     'find_discrepancy',
-    'read_moves',   # also here for galvo_sysid.cli.discrepancy and docs/discrepancy.md
 ]
 
 DEFAULT_THRESHOLD = 10.0

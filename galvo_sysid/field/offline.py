@@ -13,7 +13,7 @@ rest is used.
 The pooled estimate (the bag's plant, from all windows; the nodes have no such thing) is, for
 the refined method, :func:`~galvo_sysid.ident.identify.identify_joint`: one fit of the modal model
 to the identified windows at once, started from
-:func:`~galvo_sysid.ident.identify.pool_results` (the inverse-variance combination of the windows'
+:func:`~galvo_sysid.ident.pool.pool_results` (the inverse-variance combination of the windows'
 results), several times sharper on the weakly excited third mode. If the joint fit fails,
 the inverse-variance combination is reported instead, with the reason. For the paper
 methods the pooled estimate is the inverse-variance combination.

@@ -7,7 +7,7 @@ float64 arrays, no header) that a rosbags message class accepts; :func:`fill` se
 existing message (rclpy's float64[] fields get an ``array.array``).
 
 - ``MoveSamples`` <-> :class:`~galvo_sysid.monitor.moves.MoveHalf`
-- ``ModalParameters`` <-> :class:`~galvo_sysid.ident.identify.IdentificationResult` plus its
+- ``ModalParameters`` <-> :class:`~galvo_sysid.ident.result.IdentificationResult` plus its
   :class:`ResultStatus` (identified, or why not: the data do not match the model, the fit
   failed; the model file used)
 - ``DriftStatus`` <-> :class:`~galvo_sysid.monitor.verdict.DriftVerdict`
@@ -234,7 +234,7 @@ def _tuple(values: Any) -> tuple[float, ...]:
 
 def result_from_msg(msg: Any, *, method: str = 'refined',
                     lag_time_constant: float = 0.0) -> IdentificationResult:
-    """An :class:`~galvo_sysid.ident.identify.IdentificationResult` from a ``ModalParameters``.
+    """An :class:`~galvo_sysid.ident.result.IdentificationResult` from a ``ModalParameters``.
 
     The message does not carry the method or the amplifier lag; they are taken from the
     arguments. Its status is read by :func:`status_from_msg` (a window not identified gives

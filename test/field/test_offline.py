@@ -12,7 +12,8 @@ from galvo_sysid.errors import ConfigurationError, IdentificationError
 from galvo_sysid.field.bags import BagReader, SetAside
 from galvo_sysid.field.offline import identify_bag
 from galvo_sysid.field.simulate import simulate_bag
-from galvo_sysid.ident.identify import identify_joint, pool_results
+from galvo_sysid.ident.identify import identify_joint
+from galvo_sysid.ident.pool import pool_results
 from galvo_sysid.model import TAU
 from galvo_sysid.monitor.drift import DriftMonitor
 from galvo_sysid.monitor.pairing import MoveWindower

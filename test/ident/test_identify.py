@@ -10,12 +10,9 @@ import numpy as np
 import pytest
 
 from galvo_sysid.errors import ConfigurationError, IdentificationError, InvalidDataError
-from galvo_sysid.ident.identify import (
-    IdentificationResult,
-    identify_joint,
-    identify_window,
-    pool_results,
-)
+from galvo_sysid.ident.identify import identify_joint, identify_window
+from galvo_sysid.ident.pool import pool_results
+from galvo_sysid.ident.result import IdentificationResult
 from galvo_sysid.model import PSI, REFERENCE_MODEL, TAU, ModalModel, relative_errors
 from galvo_sysid.sim.simulator import simulate_window
 

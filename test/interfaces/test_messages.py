@@ -12,7 +12,7 @@ import pytest
 from galvo_sysid_msgs.msg import DriftStatus, ModalParameters, MoveSamples
 
 from galvo_sysid.errors import InvalidDataError
-from galvo_sysid.ident.identify import IdentificationResult
+from galvo_sysid.ident.result import IdentificationResult
 from galvo_sysid.interfaces.messages import (
     diagnostic_values,
     drift_status_fields,

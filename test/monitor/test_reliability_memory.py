@@ -36,7 +36,7 @@ from galvo_sysid.sim.simulator import GalvoSimulator
 if TYPE_CHECKING:
     from collections.abc import Iterator
 
-    from galvo_sysid.ident.identify import IdentificationResult
+    from galvo_sysid.ident.result import IdentificationResult
     from galvo_sysid.monitor.moves import Window
 
 N = 512

@@ -36,9 +36,11 @@ from hypothesis.extra import numpy as hnp
 from galvo_sysid.errors import GalvoSysidError, InvalidDataError
 from galvo_sysid.ident.arx import fit_arx
 from galvo_sysid.ident.delay import estimate_delay
-from galvo_sysid.ident.identify import IdentificationResult, identify_window, pool_results
+from galvo_sysid.ident.identify import identify_window
 from galvo_sysid.ident.paper import paper_pipeline
+from galvo_sysid.ident.pool import pool_results
 from galvo_sysid.ident.preprocess import validate_records
+from galvo_sysid.ident.result import IdentificationResult
 from galvo_sysid.interfaces.messages import move_half_from_msg, result_from_msg
 from galvo_sysid.model import REFERENCE_MODEL
 from galvo_sysid.monitor.drift import DriftMonitor
