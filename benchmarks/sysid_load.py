@@ -43,6 +43,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields, stamp_to_seconds
+from galvo_sysid.interfaces.topics import RESULT_TOPIC, SIGNAL_TOPICS, absolute_topic
 from galvo_sysid.sim.simulator import GalvoSimulator
 
 MOVE_TIME = 606e-5  # simulated seconds per move (512 recorded + 94 dwell samples at 10 us)
@@ -124,8 +125,8 @@ def _measure(args: argparse.Namespace, node: Any, executor: SingleThreadedExecut
              log_path: Path) -> dict[str, Any]:
     qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE
                      if args.qos == 'reliable' else ReliabilityPolicy.BEST_EFFORT)
-    pubs = [node.create_publisher(MoveSamples, f'{NS}/galvo/{s}', qos)
-            for s in ('current', 'encoder')]
+    pubs = [node.create_publisher(MoveSamples, absolute_topic(t, namespace=NS), qos)
+            for t in SIGNAL_TOPICS.values()]
     arrivals: dict[int, float] = {}  # stamp [ns] of a window's last move -> arrival time
     moves_in: dict[int, int] = {}
 
@@ -134,7 +135,7 @@ def _measure(args: argparse.Namespace, node: Any, executor: SingleThreadedExecut
         arrivals[key] = time.monotonic()
         moves_in[key] = int(msg.moves)
 
-    node.create_subscription(ModalParameters, f'{NS}/galvo/modal_parameters', on_result,
+    node.create_subscription(ModalParameters, absolute_topic(RESULT_TOPIC, namespace=NS), on_result,
                              QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                                         durability=DurabilityPolicy.TRANSIENT_LOCAL))
     msgs = [[fill(MoveSamples(), move_samples_fields(move_id=0, target_angle=angle,

@@ -39,6 +39,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields
+from galvo_sysid.interfaces.topics import RESULT_TOPIC, SIGNAL_TOPICS, absolute_topic
 from galvo_sysid.sim.simulator import GalvoSimulator
 
 ANGLES = (0.3, 0.9, 2.1)
@@ -89,14 +90,15 @@ def run_rate(rate: float, duration: float, moves: list[tuple[float, object, obje
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     qos_in = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-    pubs = [node.create_publisher(MoveSamples, f'/bench/galvo/{s}', qos_in)
-            for s in ('current', 'encoder')]
+    pubs = [node.create_publisher(MoveSamples, absolute_topic(t, namespace='bench'), qos_in)
+            for t in SIGNAL_TOPICS.values()]
     arrivals: dict[int, tuple[float, int]] = {}
 
     def on_result(msg: ModalParameters) -> None:
         arrivals[int(msg.window_index)] = (time.monotonic(), int(msg.moves))
 
-    node.create_subscription(ModalParameters, '/bench/galvo/modal_parameters', on_result,
+    node.create_subscription(ModalParameters, absolute_topic(RESULT_TOPIC, namespace='bench'),
+                             on_result,
                              QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                                         durability=DurabilityPolicy.TRANSIENT_LOCAL))
     # messages built once; only move_id and stamp change per publication

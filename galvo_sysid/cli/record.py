@@ -7,6 +7,7 @@ import sys
 from typing import Any
 
 from galvo_sysid.cli.common import add_subcommand, positive
+from galvo_sysid.interfaces.topics import GALVO_TOPICS
 
 __all__ = ['add_parser', 'run']
 
@@ -39,8 +40,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument('-a', '--all', action='store_true',
                    help='record every topic (except /rosout and /parameter_events)')
     p.add_argument('topics', nargs='*', metavar='TOPIC',
-                   help='topics to record (default: /galvo/current /galvo/encoder '
-                        '/galvo/modal_parameters /galvo/drift)')
+                   help=f'topics to record (default: {" ".join(GALVO_TOPICS)})')
     return p
 
 
@@ -51,7 +51,6 @@ def run(args: argparse.Namespace) -> int:
         GalvoSysidError: Output bag exists, a type is not installed (the caller prints one
             line).
     """
-    from galvo_sysid.field.bags import GALVO_TOPICS
     from galvo_sysid.field.live import record
 
     topics = args.topics or ([] if args.all else list(GALVO_TOPICS))

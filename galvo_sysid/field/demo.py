@@ -27,13 +27,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from galvo_sysid.interfaces.topics import (
+    DIAGNOSTICS_TOPIC,
+    DRIFT_TOPIC,
+    RESULT_TOPIC,
+    absolute_topic,
+)
+from galvo_sysid.monitor.verdict import ERROR, LEVEL_NAMES, STALE
+
 if TYPE_CHECKING:
     from collections.abc import Callable
 
 __all__ = ['main']
 
 NS = '/demo_scanner'
-LEVELS = ('OK', 'WARN', 'ERROR', 'STALE', 'MISMATCH')
 
 
 @dataclass
@@ -69,10 +76,12 @@ class _Demo:
         self.verdicts: list[Any] = []
         self._waiting: dict[int, Any] = {}  # verdicts that came before their result
         self.diagnostic_level: int | None = None
-        self.node.create_subscription(ModalParameters, f'{NS}/galvo/modal_parameters',
+        self.node.create_subscription(ModalParameters, absolute_topic(RESULT_TOPIC, namespace=NS),
                                       self._on_result, qos)
-        self.node.create_subscription(DriftStatus, f'{NS}/galvo/drift', self._on_verdict, qos)
-        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
+        self.node.create_subscription(DriftStatus, absolute_topic(DRIFT_TOPIC, namespace=NS),
+                                      self._on_verdict, qos)
+        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics,
+                                      10)
         self.phases: list[_Phase] = []
         self.windows = 0
 
@@ -146,7 +155,7 @@ class _Demo:
     def _on_verdict(self, msg: Any) -> None:
         self.verdicts.append(msg)
         level = int(msg.level)
-        if level == 3:
+        if level == STALE:
             print(f'  watchdog: STALE   {msg.message.removeprefix("STALE: ")}', flush=True)
             return
         self.windows += 1
@@ -160,12 +169,12 @@ class _Demo:
         r = self.results.get(int(msg.window_index))
         text = msg.message.split(': ', 1)[-1]
         if r is None:
-            print(f'  window {msg.window_index:3d}  -> {LEVELS[level]:5s} {text}', flush=True)
+            print(f'  window {msg.window_index:3d}  -> {LEVEL_NAMES[level]:5s} {text}', flush=True)
         else:
             omega = ' '.join(f'{w:7.0f}' for w in r.natural_frequencies)
             print(f'  window {msg.window_index:3d} {r.target_angle:+6.2f} deg {r.moves:3d} moves '
                   f'k0 {r.k0:.4g}  omega {omega} rad/s  fit {r.fit_percent:4.1f} %  '
-                  f'-> {LEVELS[level]:5s} {text}', flush=True)
+                  f'-> {LEVEL_NAMES[level]:5s} {text}', flush=True)
         if self.phases:
             phase = self.phases[-1]
             phase.levels.append(level)
@@ -229,7 +238,7 @@ def main() -> int:
 
         demo.phase('4. the driver stops: no more results')
         demo.stop('galvo_driver')
-        got_stale = demo.spin_until(lambda: demo.verdicts[-1].level == 3, 10)
+        got_stale = demo.spin_until(lambda: demo.verdicts[-1].level == STALE, 10)
     except KeyboardInterrupt:
         print('\ninterrupted', file=sys.stderr)
         return 130
@@ -241,10 +250,10 @@ def main() -> int:
     print('\n== summary')
     healthy = demo.phases[0].levels
     print(f'  healthy windows: {len(healthy)}, verdicts '
-          f'{", ".join(f"{LEVELS[x]} {healthy.count(x)}" for x in sorted(set(healthy)))}')
-    step_ok = p2.flagged_at is not None and p2.flag_level == 2
+          f'{", ".join(f"{LEVEL_NAMES[x]} {healthy.count(x)}" for x in sorted(set(healthy)))}')
+    step_ok = p2.flagged_at is not None and p2.flag_level == ERROR
     if p2.flagged_at is not None:
-        print(f'  step of omega_1: flagged {LEVELS[p2.flag_level]} at window {p2.flagged_at} '
+        print(f'  step of omega_1: flagged {LEVEL_NAMES[p2.flag_level]} at window {p2.flagged_at} '
               f'({p2.flag_message})')
     else:
         print('  step of omega_1: NOT flagged')
@@ -253,12 +262,13 @@ def main() -> int:
         r = demo.results.get(p3.flagged_at)
         dev = (r.natural_frequencies[0] / w1 - 1) if r is not None else math.nan
         drift_ok = abs(dev) < 0.01
-        print(f'  drift of omega_1: flagged {LEVELS[p3.flag_level]} at window {p3.flagged_at}, '
-              f'omega_1 then {100 * dev:+.2f} % (tolerance 1 %): {p3.flag_message}')
+        print(f'  drift of omega_1: flagged {LEVEL_NAMES[p3.flag_level]} at window '
+              f'{p3.flagged_at}, omega_1 then {100 * dev:+.2f} % (tolerance 1 %): '
+              f'{p3.flag_message}')
     else:
         print('  drift of omega_1: NOT flagged')
     print(f'  driver stopped: {"STALE reported" if got_stale else "STALE NOT reported"}')
-    success = ok and step_ok and drift_ok and got_stale and healthy.count(2) == 0
+    success = ok and step_ok and drift_ok and got_stale and healthy.count(ERROR) == 0
     print('demo ' + ('finished: every change was flagged.' if success else
                      'finished, but not everything went as expected (see above).'))
     return 0 if success else 1

@@ -27,13 +27,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.field.bags import (
-    CURRENT_TOPIC,
-    ENCODER_TOPIC,
-    MOVE_SAMPLES,
-    BagWriter,
-    stamp_to_ns,
-)
+from galvo_sysid.field.bags import CURRENT_TOPIC, ENCODER_TOPIC, BagWriter, stamp_to_ns
+from galvo_sysid.interfaces.topics import MOVE_SAMPLES
 from galvo_sysid.model.files import model_label
 
 if TYPE_CHECKING:

@@ -9,14 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from galvo_sysid.field.bags import (
-    CURRENT_TOPIC,
-    ENCODER_TOPIC,
-    MOVE_SAMPLES,
-    BagWriter,
-    stamp_to_ns,
-)
+from galvo_sysid.field.bags import CURRENT_TOPIC, ENCODER_TOPIC, BagWriter, stamp_to_ns
 from galvo_sysid.field.simulate import write_moves
+from galvo_sysid.interfaces.topics import MOVE_SAMPLES
 from galvo_sysid.model import REFERENCE_MODEL
 from galvo_sysid.sim.simulator import GalvoSimulator
 

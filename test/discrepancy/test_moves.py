@@ -9,8 +9,9 @@ from galvo_sysid.errors import InvalidDataError
 
 
 def test_angles_with_too_few_moves_are_set_aside(tmp_path):
-    from galvo_sysid.field.bags import CURRENT_TOPIC, ENCODER_TOPIC, MOVE_SAMPLES, BagWriter
+    from galvo_sysid.field.bags import CURRENT_TOPIC, ENCODER_TOPIC, BagWriter
     from galvo_sysid.field.simulate import write_moves
+    from galvo_sysid.interfaces.topics import MOVE_SAMPLES
     from galvo_sysid.sim.simulator import GalvoSimulator
 
     sim = GalvoSimulator(seed=1)

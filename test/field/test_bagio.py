@@ -15,7 +15,6 @@ from galvo_sysid.errors import InvalidDataError
 from galvo_sysid.field.bags import (
     CURRENT_TOPIC,
     ENCODER_TOPIC,
-    MOVE_SAMPLES,
     BagError,
     BagExistsError,
     BagNotFoundError,
@@ -29,6 +28,7 @@ from galvo_sysid.field.bags import (
     msg_search_dirs,
     stamp_to_ns,
 )
+from galvo_sysid.interfaces.topics import MOVE_SAMPLES
 from galvo_sysid.monitor.moves import MoveHalf
 
 PERIOD = 1e-5

@@ -161,7 +161,8 @@ def test_a_window_that_did_not_match_the_model_round_trips_and_is_a_mismatch_ver
 def test_modal_parameters_through_rosbags_messages() -> None:
     """The same conversions on rosbags message objects (what bags hold), serialized and back;
     a message of before the status fields reads as an identified window."""
-    from galvo_sysid.field.bags import MODAL_PARAMETERS, galvo_typestore
+    from galvo_sysid.field.bags import galvo_typestore
+    from galvo_sysid.interfaces.topics import MODAL_PARAMETERS
 
     store = galvo_typestore([MODAL_PARAMETERS])
     cls = store.types[MODAL_PARAMETERS]

@@ -7,21 +7,18 @@ message definitions of every topic, so any rosbag2 reader (``ros2 bag``, rosbags
 - :mod:`~galvo_sysid.field.bags.reader`: :class:`BagReader`, :class:`BagInfo`,
   :class:`SetAside` (a message that could not be used);
 - :mod:`~galvo_sysid.field.bags.writer`: :class:`BagWriter`;
-- :mod:`~galvo_sysid.field.bags.definitions`: topic and type names, the ``.msg`` definitions
-  and the rosbags typestore;
+- :mod:`~galvo_sysid.field.bags.definitions`: the galvo topics as bags name them (absolute),
+  the ``.msg`` definitions and the rosbags typestore (the topic and type names themselves are
+  :mod:`galvo_sysid.interfaces.topics`);
 - :mod:`~galvo_sysid.field.bags.errors`: :class:`BagError` (an
   :class:`~galvo_sysid.errors.InvalidDataError`) and its subclasses, with one-line messages.
 """
 
 from galvo_sysid.field.bags.definitions import (
     CURRENT_TOPIC,
-    DRIFT_STATUS,
     DRIFT_TOPIC,
     ENCODER_TOPIC,
-    GALVO_TOPICS,
-    MODAL_PARAMETERS,
     MODAL_PARAMETERS_TOPIC,
-    MOVE_SAMPLES,
     find_message_definition,
     galvo_typestore,
     msg_search_dirs,
@@ -40,13 +37,9 @@ from galvo_sysid.field.bags.writer import BagWriter
 
 __all__ = [
     'CURRENT_TOPIC',
-    'DRIFT_STATUS',
     'DRIFT_TOPIC',
     'ENCODER_TOPIC',
-    'GALVO_TOPICS',
-    'MODAL_PARAMETERS',
     'MODAL_PARAMETERS_TOPIC',
-    'MOVE_SAMPLES',
     'BagError',
     'BagExistsError',
     'BagInfo',

@@ -1,6 +1,8 @@
-"""Topic and message-type names of the galvo nodes, and the message definitions for rosbags.
+"""The galvo topics as bags name them, and the message definitions for rosbags.
 
-The ``galvo_sysid_msgs`` definitions are taken from the installed interface package
+The topic and message-type names are :mod:`galvo_sysid.interfaces.topics`' (one source); the
+topics here are their absolute names without namespace, as bags record them. The
+``galvo_sysid_msgs`` definitions are taken from the installed interface package
 (``<prefix>/share/galvo_sysid_msgs/msg``) or, in a source checkout, from ``msg_defs/msg``.
 """
 
@@ -15,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 
 from galvo_sysid.field.bags.errors import BagError
+from galvo_sysid.interfaces.topics import DRIFT_STATUS, GALVO_TOPICS, MODAL_PARAMETERS, MOVE_SAMPLES
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
@@ -23,13 +26,9 @@ if TYPE_CHECKING:
 
 __all__ = [
     'CURRENT_TOPIC',
-    'DRIFT_STATUS',
     'DRIFT_TOPIC',
     'ENCODER_TOPIC',
-    'GALVO_TOPICS',
-    'MODAL_PARAMETERS',
     'MODAL_PARAMETERS_TOPIC',
-    'MOVE_SAMPLES',
     'ensure_type',
     'find_message_definition',
     'galvo_typestore',
@@ -38,17 +37,11 @@ __all__ = [
     'stamp_to_ns',
 ]
 
-CURRENT_TOPIC = '/galvo/current'
-ENCODER_TOPIC = '/galvo/encoder'
-MODAL_PARAMETERS_TOPIC = '/galvo/modal_parameters'
-DRIFT_TOPIC = '/galvo/drift'
-GALVO_TOPICS = (CURRENT_TOPIC, ENCODER_TOPIC, MODAL_PARAMETERS_TOPIC, DRIFT_TOPIC)
-"""The topics the galvo nodes publish (without namespace)."""
+CURRENT_TOPIC, ENCODER_TOPIC, MODAL_PARAMETERS_TOPIC, DRIFT_TOPIC = GALVO_TOPICS
+"""The topics the galvo nodes publish, as bags name them (absolute, without namespace):
+``/galvo/current``, ``/galvo/encoder``, ``/galvo/modal_parameters``, ``/galvo/drift``."""
 
-MOVE_SAMPLES = 'galvo_sysid_msgs/msg/MoveSamples'
-MODAL_PARAMETERS = 'galvo_sysid_msgs/msg/ModalParameters'
-DRIFT_STATUS = 'galvo_sysid_msgs/msg/DriftStatus'
-_GALVO_MSGS = 'galvo_sysid_msgs'
+_GALVO_MSGS = MOVE_SAMPLES.split('/', 1)[0]
 _TYPE_RE = re.compile(r'^([A-Za-z][A-Za-z0-9_]*)/(?:msg/)?([A-Za-z][A-Za-z0-9_]*)$')
 _SOURCE_MSG_DIR = Path(__file__).resolve().parents[3] / 'msg_defs' / 'msg'
 """``msg_defs/msg`` of a source checkout (``galvo_sysid/field/bags/`` is three levels down)."""

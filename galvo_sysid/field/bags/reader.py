@@ -22,7 +22,7 @@ from rosbags.interfaces import ConnectionExtRosbag2, QosDurability
 
 from galvo_sysid.errors import GalvoSysidError
 from galvo_sysid.field.bags.base import BagFile
-from galvo_sysid.field.bags.definitions import MOVE_SAMPLES, galvo_typestore
+from galvo_sysid.field.bags.definitions import galvo_typestore
 from galvo_sysid.field.bags.errors import (
     BagError,
     BagNotFoundError,
@@ -31,6 +31,7 @@ from galvo_sysid.field.bags.errors import (
     WrongTopicTypeError,
     reason,
 )
+from galvo_sysid.interfaces.topics import MOVE_SAMPLES, SIGNAL_TOPICS
 
 if TYPE_CHECKING:
     import os
@@ -41,8 +42,6 @@ if TYPE_CHECKING:
     from galvo_sysid.monitor.moves import MoveHalf
 
 __all__ = ['BagInfo', 'BagReader', 'RawMessage', 'SetAside', 'TopicInfo']
-
-_SIGNALS = {'current': 'galvo/current', 'encoder': 'galvo/encoder'}
 
 
 @dataclass(frozen=True)
@@ -269,7 +268,7 @@ class BagReader(BagFile):
         types = {t.topic: t.msgtype for t in self.info.topics}
         prefixes: dict[str, dict[str, str]] = {}
         for topic in types:
-            for signal, suffix in _SIGNALS.items():
+            for signal, suffix in SIGNAL_TOPICS.items():
                 if topic == '/' + suffix or topic.endswith('/' + suffix):
                     prefix = topic[: -len(suffix) - 1]
                     prefixes.setdefault(prefix, {})[signal] = topic
@@ -279,15 +278,15 @@ class BagReader(BagFile):
         if not prefixes:
             where = f' under namespace {namespace}' if namespace else ''
             have = ', '.join(sorted(types)) or 'no topics'
-            msg = (f'bag {self.path} has no galvo/current and galvo/encoder topics{where} '
-                   f'(it has: {have})')
+            msg = (f'bag {self.path} has no {" and ".join(SIGNAL_TOPICS.values())} '
+                   f'topics{where} (it has: {have})')
             raise NoGalvoTopicsError(msg)
         if len(prefixes) > 1:
             names = ', '.join(p or '/' for p in sorted(prefixes))
             msg = f'bag {self.path} holds several scanners ({names}): choose one namespace'
             raise BagError(msg)
         found = next(iter(prefixes.values()))
-        for signal in _SIGNALS:
+        for signal in SIGNAL_TOPICS:
             if signal not in found:
                 other = next(iter(found.values()))
                 msg = f'bag {self.path} has {other} but no matching {signal} topic'

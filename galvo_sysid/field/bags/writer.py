@@ -29,14 +29,9 @@ from rosbags.rosbag2 import (
 )
 
 from galvo_sysid.field.bags.base import BagFile
-from galvo_sysid.field.bags.definitions import (
-    MOVE_SAMPLES,
-    ensure_type,
-    galvo_typestore,
-    split_type,
-    stamp_to_ns,
-)
+from galvo_sysid.field.bags.definitions import ensure_type, galvo_typestore, split_type, stamp_to_ns
 from galvo_sysid.field.bags.errors import BagError, BagExistsError, reason
+from galvo_sysid.interfaces.topics import MOVE_SAMPLES
 
 if TYPE_CHECKING:
     import os

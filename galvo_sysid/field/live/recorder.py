@@ -7,7 +7,7 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TextIO
 
-from galvo_sysid.field.bags import GALVO_TOPICS, BagWriter
+from galvo_sysid.field.bags import BagWriter
 from galvo_sysid.field.live.graph import (
     Stop,
     absolute,
@@ -17,6 +17,7 @@ from galvo_sysid.field.live.graph import (
     say,
     subscription_qos,
 )
+from galvo_sysid.interfaces.topics import GALVO_TOPICS
 
 if TYPE_CHECKING:
     import os
