@@ -1,8 +1,8 @@
-"""Typed exceptions raised by the galvo_sysid numerics.
+"""Typed exceptions raised by the galvo_sysid numerics, and :func:`one_line` to say them.
 
 Every error the library raises on bad input or on a failed identification derives from
 :class:`GalvoSysidError`, so callers (the nodes, the command-line tool) can catch one type,
-report the message and go on with the rest of their data.
+report the message (:func:`one_line`) and go on with the rest of their data.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ __all__ = [
     'IdentificationError',
     'InvalidDataError',
     'ModelMismatchError',
+    'one_line',
 ]
 
 
@@ -40,3 +41,8 @@ class ModelMismatchError(IdentificationError):
     scanner is not the one the model describes (or has changed beyond its bands). Callers say
     so plainly (and suggest ``galvo-sysid commission``) instead of reporting parameter drift.
     """
+
+
+def one_line(err: BaseException) -> str:
+    """An error's message on one line (its type's name when it has none)."""
+    return ' '.join(str(err).split()) or type(err).__name__

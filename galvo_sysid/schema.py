@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no stubs here
 
-from galvo_sysid.errors import ConfigurationError, InvalidDataError
+from galvo_sysid.errors import ConfigurationError, InvalidDataError, one_line
 
 if TYPE_CHECKING:
     import os
@@ -45,10 +45,6 @@ class _Loader(yaml.SafeLoader):  # type: ignore[misc]
 _Loader.add_implicit_resolver('tag:yaml.org,2002:float', _FLOAT, list('-+0123456789.'))
 
 
-def _one_line(text: str) -> str:
-    return ' '.join(text.split())
-
-
 def parse_yaml(text: str, *, source: str) -> Any:
     """Parse YAML text with the safe loader (see the module docs).
 
@@ -60,7 +56,7 @@ def parse_yaml(text: str, *, source: str) -> Any:
     try:
         return yaml.load(text, Loader=_Loader)  # a SafeLoader subclass: safe
     except yaml.YAMLError as err:
-        raise ConfigurationError(f'{source}: not valid YAML: {_one_line(str(err))}') from None
+        raise ConfigurationError(f'{source}: not valid YAML: {one_line(err)}') from None
     except RecursionError:
         raise ConfigurationError(f'{source}: nested too deeply') from None
 

@@ -14,7 +14,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / 'galvo_sysid'
 
 LAYERS = {
-    'errors': 0, 'schema': 1, 'model': 2, 'ident': 3, 'sim': 3, 'monitor': 4,
+    'errors': 0, 'jsonsafe': 0, 'schema': 1, 'model': 2, 'ident': 3, 'sim': 3, 'monitor': 4,
     'interfaces': 5, 'field': 6, 'discrepancy': 7, 'cli': 8, 'nodes': 8,
 }
 """Rank of each subpackage (and top-level module); equal ranks do not import each other."""

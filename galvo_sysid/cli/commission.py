@@ -11,7 +11,8 @@ import json
 import sys
 from typing import Any
 
-from galvo_sysid.cli.common import BAG_HELP, add_subcommand, json_safe, positive
+from galvo_sysid.cli.common import BAG_HELP, add_subcommand, positive
+from galvo_sysid.jsonsafe import json_safe
 
 __all__ = ['add_parser', 'register', 'run']
 

@@ -1,4 +1,7 @@
-"""What every ``galvo-sysid`` subcommand shares: error text, help layout, argument types, output.
+"""What every ``galvo-sysid`` subcommand shares: help layout, argument types, progress.
+
+The error line (:func:`galvo_sysid.errors.one_line`) and strict JSON
+(:func:`galvo_sysid.jsonsafe.json_safe`) are the package's, not the command line's.
 
 Imports nothing heavy (no numpy): :mod:`galvo_sysid.cli.main` imports it before it limits the
 BLAS threads, and every subcommand's parser is built from it.
@@ -21,9 +24,7 @@ __all__ = [
     'Progress',
     'add_subcommand',
     'finite_float',
-    'json_safe',
     'nonnegative_int',
-    'one_line',
     'parse_angle',
     'positive',
 ]
@@ -33,11 +34,6 @@ PSI = 0.3
 
 BAG_HELP = 'rosbag2 bag: directory, .mcap or .db3 file'
 """Help text of a subcommand's bag argument."""
-
-
-def one_line(err: BaseException) -> str:
-    """An error's message on one line (its type's name when it has none)."""
-    return ' '.join(str(err).split()) or type(err).__name__
 
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
@@ -132,17 +128,6 @@ def _number(text: str, kind: type[int] | type[float], what: str, need: str,
 
 
 # --------------------------------------------------------------------------- output
-
-
-def json_safe(value: Any) -> Any:
-    """Replace NaN/Inf by None (in dicts, lists and tuples too) so the output is strict JSON."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [json_safe(v) for v in value]
-    return value
 
 
 class Progress:

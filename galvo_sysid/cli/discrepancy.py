@@ -14,7 +14,9 @@ import sys
 from typing import TYPE_CHECKING, Any
 
 from galvo_sysid import limit_blas_threads
-from galvo_sysid.cli.common import HelpFormatter, finite_float, json_safe, one_line, positive
+from galvo_sysid.cli.common import HelpFormatter, finite_float, positive
+from galvo_sysid.errors import one_line
+from galvo_sysid.jsonsafe import json_safe
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

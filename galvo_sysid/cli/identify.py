@@ -11,7 +11,8 @@ import math
 import sys
 from typing import TYPE_CHECKING, Any
 
-from galvo_sysid.cli.common import BAG_HELP, Progress, add_subcommand, json_safe, positive
+from galvo_sysid.cli.common import BAG_HELP, Progress, add_subcommand, positive
+from galvo_sysid.jsonsafe import json_safe
 
 if TYPE_CHECKING:
     from galvo_sysid.field.offline import BagIdentification

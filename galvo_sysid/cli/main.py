@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 from galvo_sysid import limit_blas_threads
 from galvo_sysid.cli import echo, identify, info, record, replay, simulate
-from galvo_sysid.cli.common import one_line
+from galvo_sysid.errors import one_line
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

@@ -15,7 +15,7 @@ from galvo_sysid.discrepancy.compare import Comparison, Diagnostics
 from galvo_sysid.discrepancy.localise import Band, Localisation, localise
 from galvo_sysid.discrepancy.moves import MoveSet, read_moves
 from galvo_sysid.discrepancy.plant import PlantSimulator
-from galvo_sysid.discrepancy.report import format_result, json_safe, write_report
+from galvo_sysid.discrepancy.report import format_result, write_report
 from galvo_sysid.discrepancy.workflow import (
     DEFAULT_THRESHOLD,
     DiscrepancyResult,
@@ -36,7 +36,6 @@ __all__ = [
     'Step',
     'find_discrepancy',
     'format_result',
-    'json_safe',
     'localise',
     'read_moves',
     'write_report',

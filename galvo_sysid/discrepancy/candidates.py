@@ -21,13 +21,9 @@ import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
 from galvo_sysid.discrepancy.plant import mode_pulse_responses
-from galvo_sysid.discrepancy.spectra import (
-    _fft_conv,
-    _finite_or_none,
-    _second_difference_spectrum,
-    _stack,
-)
+from galvo_sysid.discrepancy.spectra import _fft_conv, _second_difference_spectrum, _stack
 from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.jsonsafe import finite_or_none
 from galvo_sysid.model.effects import Effect
 from galvo_sysid.model.plant import PlantModel
 
@@ -73,9 +69,9 @@ class CandidateFit:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: effect, score, parameters, cost, gap, whiteness."""
-        return {'effect': self.effect, 'score': _finite_or_none(self.score),
-                'parameters': dict(self.parameters), 'cost': _finite_or_none(self.cost),
-                'gap': _finite_or_none(self.gap), 'whiteness': _finite_or_none(self.whiteness)}
+        return {'effect': self.effect, 'score': finite_or_none(self.score),
+                'parameters': dict(self.parameters), 'cost': finite_or_none(self.cost),
+                'gap': finite_or_none(self.gap), 'whiteness': finite_or_none(self.whiteness)}
 
 
 def _replace_effect(model: PlantModel, index: int, params: dict[str, float]) -> PlantModel:

@@ -16,7 +16,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from galvo_sysid.discrepancy.spectra import _band_excess, _finite_or_none, _gap, _noise_gap
+from galvo_sysid.discrepancy.spectra import _band_excess, _gap, _noise_gap
+from galvo_sysid.jsonsafe import finite_or_none
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -98,7 +99,7 @@ class Localisation:
             'sizes': [{'angle': a, 'gap': g} for a, g in zip(self.angles, self.gaps,
                                                              strict=True)],
             'size_trend': self.size_trend,
-            'size_exponent': _finite_or_none(self.size_exponent),
+            'size_exponent': finite_or_none(self.size_exponent),
         }
 
     def summary(self) -> list[str]:

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from galvo_sysid.jsonsafe import json_safe
 from galvo_sysid.model.files import save_model
 
 if TYPE_CHECKING:
@@ -34,21 +35,10 @@ if TYPE_CHECKING:
     from galvo_sysid.discrepancy.localise import Localisation
     from galvo_sysid.discrepancy.workflow import DiscrepancyResult
 
-__all__ = ['format_result', 'json_safe', 'write_report']
+__all__ = ['format_result', 'write_report']
 
 _UNITS = {'delay': 's', 'natural_frequency': 'rad/s', 'damping_ratio': '', 'residue':
           'deg/(A s^2)', 'friction_current': 'A', 'gain_ratio': '', 'current_limit': 'A'}
-
-
-def json_safe(value: Any) -> Any:
-    """Replace NaN/Inf by None (strict JSON)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [json_safe(v) for v in value]
-    return value
 
 
 def _params(params: dict[str, float], sample_period: float) -> str:

@@ -105,7 +105,3 @@ def _band_excess(z2: NDArray[np.float64], *, bands: int) -> list[tuple[int, int,
         out.append((lo, hi, float(total[lo - 1:hi - 1].sum()) - n, n))
     return out
 
-
-def _finite_or_none(x: float) -> float | None:
-    """A number for JSON: None for NaN and Inf."""
-    return float(x) if math.isfinite(x) else None

@@ -20,8 +20,8 @@ from typing import TYPE_CHECKING, Any
 from galvo_sysid.discrepancy.candidates import CandidateFit, _Fitter
 from galvo_sysid.discrepancy.compare import Comparison, Diagnostics
 from galvo_sysid.discrepancy.localise import Localisation, localise
-from galvo_sysid.discrepancy.spectra import _finite_or_none
 from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.jsonsafe import finite_or_none
 from galvo_sysid.model.effects import EFFECT_NAMES, EFFECTS
 from galvo_sysid.model.paper import PAPER_MODEL
 from galvo_sysid.model.plant import PlantModel
@@ -67,10 +67,10 @@ class Step:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
         return {'effect': self.effect, 'parameters': dict(self.parameters),
-                'score': _finite_or_none(self.score),
-                'gap_before': _finite_or_none(self.gap_before),
-                'gap_after': _finite_or_none(self.gap_after),
-                'whiteness_after': _finite_or_none(self.whiteness_after),
+                'score': finite_or_none(self.score),
+                'gap_before': finite_or_none(self.gap_before),
+                'gap_after': finite_or_none(self.gap_after),
+                'whiteness_after': finite_or_none(self.whiteness_after),
                 'candidates': [c.to_dict() for c in self.candidates]}
 
 
@@ -128,8 +128,8 @@ class DiscrepancyResult:
         return {
             'effect': self.effect,
             'parameters': dict(self.parameters),
-            'gap_before': _finite_or_none(self.gap_before),
-            'gap_after': _finite_or_none(self.gap_after),
+            'gap_before': finite_or_none(self.gap_before),
+            'gap_after': finite_or_none(self.gap_after),
             'candidates': [c.to_dict() for c in self.candidates],
             'steps': [s.to_dict() for s in self.steps],
             'where': self.where.to_dict(),

@@ -30,14 +30,14 @@ from __future__ import annotations
 
 import collections
 import functools
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from galvo_sysid.errors import ConfigurationError, GalvoSysidError
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError, one_line
 from galvo_sysid.field.bags import BagInfo, BagReader, SetAside
+from galvo_sysid.jsonsafe import finite_or_none
 from galvo_sysid.model import model_label
 from galvo_sysid.monitor.parameters import WINDOWER_PARAMETERS
 
@@ -111,7 +111,7 @@ def load_node_parameters(path: str | os.PathLike[str], node: str) -> dict[str, A
         with Path(path).open(encoding='utf-8') as f:
             doc = yaml.load(f, Loader=Loader)  # a SafeLoader subclass: safe
     except (OSError, yaml.YAMLError) as err:
-        msg = f'cannot read parameter file {path}: {_one_line(err)}'
+        msg = f'cannot read parameter file {path}: {one_line(err)}'
         raise ConfigurationError(msg) from None
     if not isinstance(doc, Mapping):
         msg = f'parameter file {path} is not a mapping of node names'
@@ -129,16 +129,13 @@ def load_node_parameters(path: str | os.PathLike[str], node: str) -> dict[str, A
     return values
 
 
-def _clean(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
-
-
 def rejection_to_dict(rejection: Rejection | SetAside) -> dict[str, Any]:
     """JSON-ready form of a set-aside move: ``move_id``, ``target_angle``, ``stamp``, ``reason``."""
     if isinstance(rejection, SetAside):
         return rejection.to_dict()
-    return {'move_id': int(rejection.move_id), 'target_angle': _clean(rejection.target_angle),
-            'stamp': _clean(rejection.stamp), 'reason': rejection.reason}
+    return {'move_id': int(rejection.move_id),
+            'target_angle': finite_or_none(rejection.target_angle),
+            'stamp': finite_or_none(rejection.stamp), 'reason': rejection.reason}
 
 
 @dataclass(frozen=True)
@@ -192,8 +189,9 @@ class MismatchedWindow:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: the fields by name."""
-        return {'window_index': self.window_index, 'target_angle': _clean(self.target_angle),
-                'moves': self.moves, 'reason': self.reason}
+        return {'window_index': self.window_index,
+                'target_angle': finite_or_none(self.target_angle), 'moves': self.moves,
+                'reason': self.reason}
 
 
 @dataclass(frozen=True)
@@ -359,7 +357,7 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
         err = outcome.exception
         if outcome.result is None:
             if outcome.mismatch:  # said plainly: the scanner is another one
-                why = _one_line(err) if err is not None else outcome.error or ''
+                why = one_line(err) if err is not None else outcome.error or ''
                 mismatched.append(MismatchedWindow(window.index, window.target_angle,
                                                    window.moves, why))
                 reason = f'window {window.index} does not match the model: {why}'
@@ -427,8 +425,8 @@ def _failure(err: BaseException | None, error: str | None) -> str:
     if err is None:
         return error or 'unknown reason'
     if isinstance(err, GalvoSysidError):
-        return _one_line(err)
-    return f'unexpected {type(err).__name__}: {_one_line(err)}'
+        return one_line(err)
+    return f'unexpected {type(err).__name__}: {one_line(err)}'
 
 
 def _insert(items: list[dict[str, Any]], late: list[tuple[int, list[dict[str, Any]]]],
@@ -484,9 +482,5 @@ def _pooled(results: list[IdentificationResult], kept: list[Window], *, pooling:
                                target_angle=combined.target_angle, keep_initial_damping=True,
                                model=model)
     except GalvoSysidError as err:
-        return combined, 'inverse-variance', f'joint fit failed: {_one_line(err)}'
+        return combined, 'inverse-variance', f'joint fit failed: {one_line(err)}'
     return joint, 'joint', None
-
-
-def _one_line(err: BaseException) -> str:
-    return ' '.join(str(err).split()) or type(err).__name__

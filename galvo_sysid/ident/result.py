@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
 from typing import Any
 
+from galvo_sysid.jsonsafe import json_safe
 from galvo_sysid.model import ModalModel
 
 __all__ = ['IdentificationResult', 'result_from_vectors']
@@ -76,15 +76,8 @@ class IdentificationResult:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict keyed by the field names (tuples as lists, non-finite as None)."""
-
-        def clean(v: Any) -> Any:
-            if isinstance(v, tuple):
-                return [clean(x) for x in v]
-            if isinstance(v, float):
-                return v if math.isfinite(v) else None
-            return v
-
-        return {f.name: clean(getattr(self, f.name)) for f in fields(self)}
+        out: dict[str, Any] = json_safe({f.name: getattr(self, f.name) for f in fields(self)})
+        return out
 
 
 def result_from_vectors(values: dict[str, float], stds: dict[str, float], *, n_modes: int,

@@ -28,7 +28,7 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
-from galvo_sysid.errors import ConfigurationError, GalvoSysidError, ModelMismatchError
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError, ModelMismatchError, one_line
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping
@@ -350,7 +350,7 @@ class WindowScheduler:
                         self._pool = self._new_pool()
                 return None, 'identification process died', False, err
         except ModelMismatchError as err:
-            return None, ' '.join(str(err).split()), True, err
+            return None, one_line(err), True, err
         except GalvoSysidError as err:
             return None, str(err), False, err
         except Exception as err:  # keep the node alive, say what happened

@@ -11,6 +11,8 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from galvo_sysid.jsonsafe import finite_or_none
+
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
@@ -79,17 +81,14 @@ class DriftVerdict:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form; NaN becomes None."""
-        def clean(x: float) -> float | None:
-            return float(x) if math.isfinite(x) else None
-
         def by_name(values: Sequence[float]) -> dict[str, float | None]:
-            return {n: clean(v) for n, v in zip(self.names, values, strict=False)}
+            return {n: finite_or_none(v) for n, v in zip(self.names, values, strict=False)}
 
         return {
             'window_index': int(self.window_index),
             'level': self.level_name,
             'message': self.message,
-            'target_angle': clean(self.target_angle),
+            'target_angle': finite_or_none(self.target_angle),
             'flagged': list(self.flagged),
             'deviations': by_name(self.relative_deviation),
             'tolerances': by_name(self.tolerance),

@@ -23,7 +23,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import try_shutdown
 
-from galvo_sysid.errors import ConfigurationError, GalvoSysidError
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError, one_line
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -196,7 +196,7 @@ def run_node(factory: Callable[[], Node], *, args: Sequence[str] | None = None,
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (GalvoSysidError, ParameterException) as err:
-        print(f'error: {" ".join(str(err).split())}', file=sys.stderr)
+        print(f'error: {one_line(err)}', file=sys.stderr)
         code = 2
     finally:
         if node is not None:

@@ -13,9 +13,7 @@ from galvo_sysid.cli.common import (
     Progress,
     add_subcommand,
     finite_float,
-    json_safe,
     nonnegative_int,
-    one_line,
     parse_angle,
     positive,
 )
@@ -70,16 +68,6 @@ def test_number_argument_types_say_what_is_wrong() -> None:
     for parse, text, message in cases:
         with pytest.raises(argparse.ArgumentTypeError, match=message):
             parse(text)
-
-
-def test_json_safe_makes_strict_json() -> None:
-    value = {'a': math.nan, 'b': [1.0, math.inf, (2, -math.inf)], 'c': 'x', 'd': None}
-    assert json_safe(value) == {'a': None, 'b': [1.0, None, [2, None]], 'c': 'x', 'd': None}
-
-
-def test_one_line() -> None:
-    assert one_line(ValueError('bad\n  value\tthere')) == 'bad value there'
-    assert one_line(KeyboardInterrupt()) == 'KeyboardInterrupt'
 
 
 def test_help_shows_only_defaults_that_say_something() -> None:
