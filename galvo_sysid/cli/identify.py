@@ -65,6 +65,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         description=_DESCRIPTION, epilog=_EPILOG)
     p.add_argument('bag', help=BAG_HELP)
     p.add_argument('--json', action='store_true', help='print one JSON object on stdout')
+    # The choices and defaults below are galvo_sysid.ident.identify.METHODS,
+    # galvo_sysid.field.offline.POOLINGS and defaults('sysid') of galvo_sysid.monitor.parameters
+    # written out (test/cli/test_cli.py checks them): importing those modules here would load
+    # numpy and scipy for every subcommand's parser (half a second of start-up for `info`).
     p.add_argument('--method', choices=('refined', 'paper-A', 'paper-B'), default=None,
                    help="identification method (default: the sysid node's, refined)")
     p.add_argument('--plot', metavar='FILE',
@@ -117,10 +121,10 @@ def run(args: argparse.Namespace) -> int:
 
         check_plot_path(args.plot)
     from galvo_sysid.model import load_model
+    from galvo_sysid.monitor.parameters import defaults
     from galvo_sysid.monitor.tasks import mismatch_message
 
-    sysid: dict[str, Any] = {'window_size': 100, 'method': 'refined', 'na': 15, 'nb': 15,
-                             'model': ''}
+    sysid = defaults('sysid')  # the sysid node's defaults, then its parameter file, then options
     if args.sysid_params:
         sysid.update(load_node_parameters(args.sysid_params, 'sysid'))
     for name in ('window_size', 'method', 'na', 'nb', 'model'):

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from galvo_sysid.errors import InvalidDataError
+from galvo_sysid.monitor.parameters import defaults
 
 if TYPE_CHECKING:
     import os
@@ -29,6 +30,9 @@ if TYPE_CHECKING:
     from galvo_sysid.monitor.moves import Window
 
 __all__ = ['BagCommissioning', 'commission_bag', 'commission_figure', 'format_commissioning']
+
+_SYSID = defaults('sysid')
+"""The sysid node's parameter defaults (commissioning windows its moves the same way)."""
 
 
 @dataclass(frozen=True)
@@ -100,14 +104,14 @@ def _dwell(windows: list[Window], sample_period: float, samples: int) -> int:
 
 
 def commission_bag(bag: str | os.PathLike[str], *, namespace: str | None = None,
-                   window_size: int = 100, max_modes: int = 6,
+                   window_size: int = _SYSID['window_size'], max_modes: int = 6,
                    progress: Callable[[str], None] | None = None) -> BagCommissioning:
     """Commission the scanner whose moves a bag holds.
 
     Args:
         bag: The bag (directory, ``.mcap`` or ``.db3``).
         namespace: Scanner namespace when the bag holds several.
-        window_size: Moves per window (the sysid node's default is 100).
+        window_size: Moves per window; default: the sysid node's ``window_size`` (100).
         max_modes: Most resonant modes looked for.
         progress: Called with a line of text at each step.
 

@@ -37,9 +37,10 @@ from typing import TYPE_CHECKING, Any
 
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError, one_line
 from galvo_sysid.field.bags import BagInfo, BagReader, SetAside
+from galvo_sysid.ident.identify import METHODS
 from galvo_sysid.jsonsafe import finite_or_none
 from galvo_sysid.model import model_label
-from galvo_sysid.monitor.parameters import WINDOWER_PARAMETERS
+from galvo_sysid.monitor.parameters import WINDOWER_PARAMETERS, defaults
 
 if TYPE_CHECKING:
     import os
@@ -55,7 +56,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     'JOINT_WINDOWS',
-    'METHODS',
     'POOLINGS',
     'BagIdentification',
     'MismatchedWindow',
@@ -65,8 +65,8 @@ __all__ = [
     'rejection_to_dict',
 ]
 
-METHODS = ('refined', 'paper-A', 'paper-B')
-"""Identification methods ``galvo-sysid identify --method`` accepts."""
+_SYSID = defaults('sysid')
+"""The sysid node's parameter defaults: :func:`identify_bag`'s defaults (one source)."""
 
 POOLINGS = ('joint', 'inverse-variance')
 """Pooled estimates: one joint fit to the windows (refined method only), or the
@@ -265,10 +265,11 @@ class BagIdentification:
         }
 
 
-def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
-                 window_size: int = 100, min_partial: int | None = None,
+def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
+                 window_size: int = _SYSID['window_size'], min_partial: int | None = None,
                  namespace: str | None = None, monitor: DriftMonitor | None = None,
-                 na: int = 15, nb: int = 15, windower: Mapping[str, Any] | None = None,
+                 na: int = _SYSID['na'], nb: int = _SYSID['nb'],
+                 windower: Mapping[str, Any] | None = None,
                  jobs: int = 1, pooling: str | None = None,
                  joint_windows: int = JOINT_WINDOWS, model: PlantModel | None = None,
                  model_path: str = '',
@@ -277,14 +278,15 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = 'refined',
 
     Args:
         bag: The bag (directory, ``.mcap`` or ``.db3``).
-        method: ``'refined'`` (default), ``'paper-A'`` or ``'paper-B'``.
-        window_size: Moves per window (the sysid node's default is 100).
+        method: One of :data:`~galvo_sysid.ident.identify.METHODS`; default: the sysid
+            node's parameter ``method`` (``'refined'``).
+        window_size: Moves per window; default: the sysid node's ``window_size`` (100).
         min_partial: Smallest unfinished window identified at the end; default half a window.
         namespace: Scanner namespace when the bag holds several.
         monitor: Drift monitor (default: reference = the model, default tolerances).
-        na: ARX order of A[q] (paper pipeline, also the refined fit's start), as the sysid
-            node's parameter ``na``.
-        nb: ARX order of B[q], as the sysid node's ``nb``.
+        na: ARX order of A[q] (paper pipeline, also the refined fit's start); default: the
+            sysid node's parameter ``na``.
+        nb: ARX order of B[q]; default: the sysid node's ``nb``.
         windower: Further :class:`~galvo_sysid.monitor.pairing.MoveWindower` settings, as the
             sysid node's parameters of
             :data:`~galvo_sysid.monitor.parameters.WINDOWER_PARAMETERS` (``window_size`` here

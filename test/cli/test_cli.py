@@ -336,6 +336,31 @@ def test_builtin_commands_register_no_plugin(sim_bag: Path) -> None:
     assert proc.stdout.splitlines()[-1] == '0 []', proc.stdout + proc.stderr
 
 
+def test_identify_and_commission_options_are_the_sysid_node_s() -> None:
+    """The parser writes METHODS, POOLINGS and the sysid defaults out (to stay light): same."""
+    import argparse
+    import sys
+
+    from galvo_sysid.cli.main import build_parser
+    from galvo_sysid.field.offline import POOLINGS
+    from galvo_sysid.ident.identify import METHODS
+    from galvo_sysid.monitor.parameters import defaults
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    options = {f'{name} {a.dest}': a for name in ('identify', 'commission')
+               for a in sub.choices[name]._actions}
+    assert tuple(options['identify method'].choices) == METHODS
+    assert tuple(options['identify pooling'].choices) == POOLINGS
+    sysid = defaults('sysid')
+    for name in ('window_size', 'na', 'nb'):
+        assert f'parameter {name}, {sysid[name]}' in options[f'identify {name}'].help, name
+    assert options['commission window_size'].default == sysid['window_size']
+    code = ('import sys\nfrom galvo_sysid.cli.main import build_parser\n'
+            'build_parser(plugins=False)\nprint("numpy" in sys.modules)\n')
+    proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          check=True, timeout=60)
+    assert proc.stdout.strip() == 'False'  # the parser of the built-in commands stays light
+
 def test_importing_leaves_the_environment_alone_and_main_limits_blas(tmp_path: Path) -> None:
     """Only the entry point sets the BLAS thread count (before numpy is loaded), not an import."""
     import os
