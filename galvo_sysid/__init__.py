@@ -6,7 +6,8 @@ the ROS 2 nodes live in :mod:`galvo_sysid.nodes`; the command-line tool in
 :mod:`galvo_sysid.cli.main`.
 
 Importing the package changes nothing in the process (no environment variables); the entry
-points call :func:`limit_blas_threads` before numpy is imported.
+points call :func:`limit_blas_threads` before numpy is imported (``galvo-sysid`` in its main,
+the nodes in :mod:`galvo_sysid.nodes`, which their modules import first).
 """
 
 from __future__ import annotations

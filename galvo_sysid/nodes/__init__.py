@@ -3,4 +3,15 @@
 - :mod:`~galvo_sysid.nodes.driver_node` (``galvo_driver``): the simulated scanner.
 - :mod:`~galvo_sysid.nodes.sysid_node` (``sysid``): online identification per window.
 - :mod:`~galvo_sysid.nodes.watchdog_node` (``watchdog``): drift verdicts and diagnostics.
+
+Starting a node limits BLAS to one thread unless the user set the thread count
+(:func:`galvo_sysid.limit_blas_threads`): the console scripts import a node module, which
+imports this package first, so the call here comes before any node module imports numpy.
+Importing :mod:`galvo_sysid.nodes` (or a node module) therefore sets
+:data:`galvo_sysid.BLAS_THREAD_VARIABLES` that are not set yet; importing the rest of
+galvo_sysid changes nothing in the process.
 """
+
+from galvo_sysid import limit_blas_threads
+
+limit_blas_threads()  # before the node modules import numpy

@@ -22,3 +22,27 @@ def test_descriptors() -> None:
     assert tolerance.description.endswith('(optional number)')
     queue = framework.descriptor(specs['queue_size'])
     assert queue.read_only
+
+
+def test_starting_a_node_limits_blas_unless_the_user_set_it() -> None:
+    """The node modules import galvo_sysid.nodes first, which limits BLAS before numpy loads."""
+    import os
+    import subprocess
+    import sys
+
+    from galvo_sysid import BLAS_THREAD_VARIABLES
+
+    code = ('import os, sys\n'
+            'import galvo_sysid.nodes\n'
+            'print("numpy" in sys.modules)\n'
+            'import galvo_sysid.nodes.sysid_node\n'
+            'from galvo_sysid import BLAS_THREAD_VARIABLES as names\n'
+            'print([os.environ.get(v) for v in names])\n')
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_THREAD_VARIABLES}
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True, timeout=60, env=env).stdout.splitlines()
+    assert out == ['False', "['1', '1', '1']"]
+    env['OMP_NUM_THREADS'] = '2'  # a setting of the user's wins
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True, timeout=60, env=env).stdout.splitlines()
+    assert out[-1] == "['1', '2', '1']"
