@@ -1,7 +1,7 @@
 """Plain values for strict JSON: NaN and infinity become None (imports nothing heavy).
 
-Every ``to_dict`` and every ``--json`` output of galvo_sysid goes through these two, so the
-output is strict JSON (``json.dump(..., allow_nan=False)`` accepts it).
+The results' ``to_dict`` and the ``--json`` objects of ``galvo-sysid`` go through these two,
+so the output is strict JSON (``json.dump(..., allow_nan=False)`` accepts it).
 """
 
 from __future__ import annotations

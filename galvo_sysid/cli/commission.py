@@ -7,12 +7,10 @@ The subcommand's parser and run function; :mod:`galvo_sysid.cli.main` picks it u
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
-from galvo_sysid.cli.common import BAG_HELP, add_subcommand, positive
-from galvo_sysid.jsonsafe import json_safe
+from galvo_sysid.cli.common import BAG_HELP, add_subcommand, positive, print_json
 
 __all__ = ['add_parser', 'register', 'run']
 
@@ -97,8 +95,7 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         commission_figure(found).savefig(args.plot, dpi=120)
     if args.json:
-        json.dump(json_safe(found.to_dict()), sys.stdout, allow_nan=False)
-        sys.stdout.write('\n')
+        print_json(found.to_dict())
     else:
         sys.stdout.write(format_commissioning(found, out=str(path)))
     if args.plot:

@@ -1,4 +1,4 @@
-"""What every ``galvo-sysid`` subcommand shares: help layout, argument types, progress.
+"""What every ``galvo-sysid`` subcommand shares: help layout, argument types, output.
 
 The error line (:func:`galvo_sysid.errors.one_line`) and strict JSON
 (:func:`galvo_sysid.jsonsafe.json_safe`) are the package's, not the command line's.
@@ -10,9 +10,13 @@ BLAS threads, and every subcommand's parser is built from it.
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import sys
 import time
 from typing import TYPE_CHECKING, Any, TextIO
+
+from galvo_sysid.jsonsafe import json_safe
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -27,6 +31,7 @@ __all__ = [
     'nonnegative_int',
     'parse_angle',
     'positive',
+    'print_json',
 ]
 
 PSI = 0.3
@@ -128,6 +133,12 @@ def _number(text: str, kind: type[int] | type[float], what: str, need: str,
 
 
 # --------------------------------------------------------------------------- output
+
+
+def print_json(value: Any) -> None:
+    """Print ``value`` on stdout as one line of strict JSON (NaN and infinity as null)."""
+    json.dump(json_safe(value), sys.stdout, allow_nan=False)
+    sys.stdout.write('\n')
 
 
 class Progress:

@@ -9,14 +9,12 @@ The subcommand's parser and run function; :mod:`galvo_sysid.cli.main` picks it u
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import TYPE_CHECKING, Any
 
 from galvo_sysid import limit_blas_threads
-from galvo_sysid.cli.common import HelpFormatter, finite_float, positive
+from galvo_sysid.cli.common import HelpFormatter, finite_float, positive, print_json
 from galvo_sysid.errors import one_line
-from galvo_sysid.jsonsafe import json_safe
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -131,10 +129,7 @@ def run(args: argparse.Namespace) -> int:
         if verbose:
             sys.stderr.write('\r\033[K')
     if args.json:
-        out = json_safe(result.to_dict())
-        out['rejected'] = rejected
-        json.dump(out, sys.stdout, allow_nan=False)
-        sys.stdout.write('\n')
+        print_json({**result.to_dict(), 'rejected': rejected})
     else:
         sys.stdout.write(format_result(result, source=str(args.bag)))
         if rejected:

@@ -6,13 +6,11 @@ Also the readable report it prints (:func:`format_identification`).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from typing import TYPE_CHECKING, Any
 
-from galvo_sysid.cli.common import BAG_HELP, Progress, add_subcommand, positive
-from galvo_sysid.jsonsafe import json_safe
+from galvo_sysid.cli.common import BAG_HELP, Progress, add_subcommand, positive, print_json
 
 if TYPE_CHECKING:
     from galvo_sysid.field.offline import BagIdentification
@@ -153,8 +151,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         progress.close()
     if args.json:
-        json.dump(json_safe(found.to_dict()), sys.stdout, allow_nan=False)
-        sys.stdout.write('\n')
+        print_json(found.to_dict())
     else:
         sys.stdout.write(format_identification(found))
     if args.plot:

@@ -1,9 +1,10 @@
-"""What the three nodes share: QoS profiles, declared parameters, a clean main loop.
+"""What the three nodes share: QoS profiles, declared parameters, diagnostics, a main loop.
 
 The parameters themselves (names, defaults, ranges) are :mod:`galvo_sysid.monitor.parameters`
 and the topic names :mod:`galvo_sysid.interfaces.topics` (both without ROS); this module
 declares the parameters with their ROS descriptors (:func:`descriptor`) and checks changes
-(:class:`ParameterSet`).
+(:class:`ParameterSet`). :func:`publish_diagnostic` publishes a node's status on
+``/diagnostics``, its level a verdict level of :mod:`galvo_sysid.monitor.verdict`.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import sys
 from typing import TYPE_CHECKING, Any
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -24,22 +26,26 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.utilities import try_shutdown
 
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError, one_line
+from galvo_sysid.monitor.verdict import ERROR, MISMATCH, OK, STALE, WARN
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+    from collections.abc import Callable, Iterable, Sequence
 
     from rclpy.impl.rcutils_logger import RcutilsLogger
     from rclpy.node import Node
     from rclpy.parameter import Parameter
+    from rclpy.publisher import Publisher
 
     from galvo_sysid.monitor.parameters import ParamSpec
 
 __all__ = [
+    'DIAGNOSTIC_LEVELS',
     'ParameterSet',
     'descriptor',
     'diagnostics_qos',
     'logger',
     'moves_qos',
+    'publish_diagnostic',
     'results_qos',
     'run_node',
     'scanner_name',
@@ -70,6 +76,37 @@ def diagnostics_qos() -> QoSProfile:
     """What diagnostic_aggregator and rqt_robot_monitor expect: reliable, volatile, depth 10."""
     return QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
+
+
+DIAGNOSTIC_LEVELS = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN,
+                     ERROR: DiagnosticStatus.ERROR, STALE: DiagnosticStatus.STALE,
+                     MISMATCH: DiagnosticStatus.ERROR}
+"""The diagnostic level of each verdict level (data not matching the model is an ERROR)."""
+
+
+def publish_diagnostic(node: Node, publisher: Publisher, *, name: str, hardware_id: str,
+                       level: int, message: str, values: Iterable[tuple[str, str]]) -> None:
+    """Publish one status on ``/diagnostics`` (a ``DiagnosticArray`` stamped now).
+
+    Args:
+        node: The publishing node (its clock stamps the array).
+        publisher: Its ``DiagnosticArray`` publisher.
+        name: The status name, e.g. ``'scanner_1: plant drift'``.
+        hardware_id: The scanner's name.
+        level: A verdict level (:data:`DIAGNOSTIC_LEVELS` gives the diagnostic one).
+        message: The status message.
+        values: ``(key, value)`` pairs shown with the status.
+    """
+    status = DiagnosticStatus()
+    status.level = DIAGNOSTIC_LEVELS[level]
+    status.name = name
+    status.hardware_id = hardware_id
+    status.message = message
+    status.values = [KeyValue(key=k, value=v) for k, v in values]
+    array = DiagnosticArray()
+    array.header.stamp = node.get_clock().now().to_msg()
+    array.status = [status]
+    publisher.publish(array)
 
 
 def logger(node: Node) -> RcutilsLogger:

@@ -23,7 +23,7 @@ import functools
 import sys
 from typing import TYPE_CHECKING, Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from galvo_sysid_msgs.msg import ModalParameters, MoveSamples
 from rclpy.node import Node
 
@@ -46,12 +46,13 @@ from galvo_sysid.monitor.pairing import MoveWindower
 from galvo_sysid.monitor.parameters import SYSID_PARAMETERS, WINDOWER_PARAMETERS
 from galvo_sysid.monitor.scheduler import FitOutcome, fit_window
 from galvo_sysid.monitor.tasks import SysidTask
-from galvo_sysid.monitor.verdict import ERROR, OK, STATUS_MISMATCH, WARN
+from galvo_sysid.monitor.verdict import STATUS_MISMATCH
 from galvo_sysid.nodes.framework import (
     ParameterSet,
     diagnostics_qos,
     logger,
     moves_qos,
+    publish_diagnostic,
     results_qos,
     run_node,
     scanner_name,
@@ -61,10 +62,6 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
 
 __all__ = ['SysidNode', 'main']
-
-_LEVEL_BYTES = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN,
-                ERROR: DiagnosticStatus.ERROR}
-
 
 def _validate(values: dict[str, Any]) -> str | None:
     if values['samples'] and values['samples'] > values['max_samples']:
@@ -174,19 +171,11 @@ class SysidNode(Node):
         now = self.task.stats()
         level, message = self.task.health(self._reported, now=now)
         self._reported = now
-        status = DiagnosticStatus()
         scanner = scanner_name(self, self.params.values['hardware_id'])
-        status.name = f'{scanner}: identification'
-        status.hardware_id = scanner
-        status.level = _LEVEL_BYTES[level]
-        status.message = message
-        status.values = [KeyValue(key=k, value=str(x)) for k, x in now.items()]
-        status.values.append(KeyValue(key='model',
-                                      value=model_label(self.params.values['model'])))
-        array = DiagnosticArray()
-        array.header.stamp = self.get_clock().now().to_msg()
-        array.status = [status]
-        self.diagnostics.publish(array)
+        values = [(k, str(x)) for k, x in now.items()]
+        values.append(('model', model_label(self.params.values['model'])))
+        publish_diagnostic(self, self.diagnostics, name=f'{scanner}: identification',
+                           hardware_id=scanner, level=level, message=message, values=values)
 
     def close(self) -> None:
         """Stop the fit workers (queued windows are finished for up to 2 s)."""

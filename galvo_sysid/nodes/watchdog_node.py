@@ -27,7 +27,7 @@ from __future__ import annotations
 import sys
 from typing import TYPE_CHECKING, Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from galvo_sysid_msgs.msg import DriftStatus, ModalParameters
 from rclpy.node import Node
 
@@ -46,11 +46,12 @@ from galvo_sysid.model import PlantModel, load_model, model_label
 from galvo_sysid.monitor.parameters import DECLARED_MODES, WATCHDOG_PARAMETERS, tolerance_specs
 from galvo_sysid.monitor.reference import monitor_from_parameters
 from galvo_sysid.monitor.tasks import WatchdogTask
-from galvo_sysid.monitor.verdict import ERROR, MISMATCH, OK, STALE, WARN, DriftVerdict
+from galvo_sysid.monitor.verdict import OK, STALE, DriftVerdict
 from galvo_sysid.nodes.framework import (
     ParameterSet,
     diagnostics_qos,
     logger,
+    publish_diagnostic,
     results_qos,
     run_node,
     scanner_name,
@@ -60,11 +61,6 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
 
 __all__ = ['WatchdogNode', 'main']
-
-_LEVEL_BYTES = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN,
-                ERROR: DiagnosticStatus.ERROR, STALE: DiagnosticStatus.STALE,
-                MISMATCH: DiagnosticStatus.ERROR}
-
 
 class WatchdogNode(Node):
     """The watchdog node (see the module docs)."""
@@ -148,20 +144,13 @@ class WatchdogNode(Node):
             self.log.warning(f'{self.scanner}: {verdict.message}')
             self._publish_verdict(verdict, stamp=now)
             self._last_level = STALE
-        status = DiagnosticStatus()
-        status.level = _LEVEL_BYTES[verdict.level]
-        status.name = f'{self.scanner}: plant drift'
-        status.hardware_id = self.scanner
-        status.message = verdict.message
         age = self.task.age
         extra = {'windows judged': str(self.task.windows_judged),
                  'last result age [s]': 'none yet' if age is None else f'{age:.1f}'}
-        status.values = [KeyValue(key=k, value=v)
-                         for k, v in diagnostic_values(verdict, extra=extra)]
-        array = DiagnosticArray()
-        array.header.stamp = self.get_clock().now().to_msg()
-        array.status = [status]
-        self.diagnostics.publish(array)
+        publish_diagnostic(self, self.diagnostics, name=f'{self.scanner}: plant drift',
+                           hardware_id=self.scanner, level=verdict.level,
+                           message=verdict.message,
+                           values=diagnostic_values(verdict, extra=extra))
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -16,6 +16,7 @@ from galvo_sysid.cli.common import (
     nonnegative_int,
     parse_angle,
     positive,
+    print_json,
 )
 
 
@@ -88,3 +89,8 @@ def test_help_shows_only_defaults_that_say_something() -> None:
     assert '(default: None)' not in text
     assert '(default: False)' not in text
     assert '(default: [])' not in text
+
+
+def test_print_json_is_one_line_of_strict_json(capsys: pytest.CaptureFixture[str]) -> None:
+    print_json({'a': math.nan, 'b': (1.5, math.inf), 'c': 'x'})
+    assert capsys.readouterr().out == '{"a": null, "b": [1.5, null], "c": "x"}\n'

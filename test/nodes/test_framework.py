@@ -24,6 +24,15 @@ def test_descriptors() -> None:
     assert queue.read_only
 
 
+def test_every_verdict_level_has_a_diagnostic_level() -> None:
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from galvo_sysid.monitor import verdict
+
+    assert set(framework.DIAGNOSTIC_LEVELS) == set(range(len(verdict.LEVEL_NAMES)))
+    assert framework.DIAGNOSTIC_LEVELS[verdict.MISMATCH] == DiagnosticStatus.ERROR
+    assert framework.DIAGNOSTIC_LEVELS[verdict.STALE] == DiagnosticStatus.STALE
+
 def test_starting_a_node_limits_blas_unless_the_user_set_it() -> None:
     """The node modules import galvo_sysid.nodes first, which limits BLAS before numpy loads."""
     import os
