@@ -32,10 +32,9 @@ import collections
 import functools
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from galvo_sysid.errors import ConfigurationError, GalvoSysidError, one_line
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError, InvalidDataError, one_line
 from galvo_sysid.field.bags import BagInfo, BagReader, SetAside
 from galvo_sysid.ident.identify import METHODS
 from galvo_sysid.jsonsafe import finite_or_none
@@ -91,28 +90,20 @@ def load_node_parameters(path: str | os.PathLike[str], node: str) -> dict[str, A
     """Read a ROS 2 parameter file (``--params-file``) for ``node``; nested names joined by '.'.
 
     Sections apply as ROS applies them: ``/**`` first, then sections naming the node (with or
-    without namespace, e.g. ``sysid`` or ``/scanner_1/sysid``), later ones winning.
+    without namespace, e.g. ``sysid`` or ``/scanner_1/sysid``), later ones winning. The file is
+    read by :func:`galvo_sysid.schema.load_yaml` (numbers as ROS reads them, no aliases).
 
     Raises:
         ConfigurationError: Unreadable file or no section for the node.
     """
-    import re
+    from galvo_sysid.schema import load_yaml
 
-    import yaml  # type: ignore[import-untyped]  # PyYAML ships no stubs here
-
-    class Loader(yaml.SafeLoader):  # type: ignore[misc]
-        """YAML 1.1 reads 3.564e6 as a string; ROS's parameter parser reads a number."""
-
-    Loader.add_implicit_resolver(
-        'tag:yaml.org,2002:float',
-        re.compile(r'^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+$'),
-        list('-+0123456789.'))
     try:
-        with Path(path).open(encoding='utf-8') as f:
-            doc = yaml.load(f, Loader=Loader)  # a SafeLoader subclass: safe
-    except (OSError, yaml.YAMLError) as err:
-        msg = f'cannot read parameter file {path}: {one_line(err)}'
-        raise ConfigurationError(msg) from None
+        doc = load_yaml(path, what='parameter file')
+    except InvalidDataError as err:  # missing, not a regular file, not text
+        raise ConfigurationError(one_line(err)) from None
+    except ConfigurationError as err:  # not valid YAML, an alias, too large
+        raise ConfigurationError(f'cannot read parameter file {one_line(err)}') from None
     if not isinstance(doc, Mapping):
         msg = f'parameter file {path} is not a mapping of node names'
         raise ConfigurationError(msg)

@@ -245,6 +245,12 @@ def test_parameter_files(tmp_path: Path, repo: Path) -> None:
     broken.write_text('a: [\n')
     with pytest.raises(ConfigurationError, match='cannot read'):
         load_node_parameters(broken, 'sysid')
+    aliased = tmp_path / 's.yaml'  # read like every YAML file (galvo_sysid.schema): no aliases
+    aliased.write_text('x: &a {window_size: 50}\n/**:\n  ros__parameters: *a\n')
+    with pytest.raises(ConfigurationError, match='aliases are not allowed'):
+        load_node_parameters(aliased, 'sysid')
+    with pytest.raises(ConfigurationError, match=r'cannot read parameter file .*no such file'):
+        load_node_parameters(tmp_path / 'none.yaml', 'sysid')
     with pytest.raises(ConfigurationError):
         monitor_from_parameters({'tolerances.k0': -1.0})
 
