@@ -57,7 +57,8 @@ def simulate(effect: str | None, params: dict[str, float], *, seed: int,
              moves_per_angle: int) -> MoveSet:
     """Moves of the simulated scanner with one effect (or none)."""
     from galvo_sysid.model import PAPER_MODEL
-    from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig
+    from galvo_sysid.sim.config import SimulatorConfig
+    from galvo_sysid.sim.simulator import GalvoSimulator
 
     cfg = SimulatorConfig()
     if effect is not None:

@@ -15,7 +15,8 @@ from collections.abc import Callable
 import numpy as np
 
 from galvo_sysid.model import PAPER_ANGLES, PAPER_MODEL, Drift, PlantModel
-from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig, simulate_window
+from galvo_sysid.sim.config import SimulatorConfig
+from galvo_sysid.sim.simulator import GalvoSimulator, simulate_window
 
 
 def _rate(run: Callable[[], int], repeat: int) -> float:

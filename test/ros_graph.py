@@ -36,7 +36,7 @@ if TYPE_CHECKING:
     from rclpy.node import Node
     from rclpy.parameter import Parameter
 
-    from galvo_sysid.sim.simulator import Move
+    from galvo_sysid.sim.config import Move
 
 RESULTS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     """
     from galvo_sysid.field.simulate import simulate_bag
     from galvo_sysid.model import load_model
-    from galvo_sysid.sim.simulator import SimulatorConfig
+    from galvo_sysid.sim.config import SimulatorConfig
 
     config = SimulatorConfig(plant=load_model(args.model or None),
                              record_length=args.record_length, dwell_length=args.dwell_length)

@@ -86,7 +86,7 @@ class MoveSet:
 
     @classmethod
     def from_moves(cls, moves: Iterable[Any]) -> MoveSet:
-        """Build from move objects (e.g. :class:`galvo_sysid.sim.simulator.Move`).
+        """Build from move objects (e.g. :class:`galvo_sysid.sim.config.Move`).
 
         Each needs ``current``, ``encoder``, ``target_angle``, ``sample_period`` and
         ``move_id``; ``stamp`` is used if present.

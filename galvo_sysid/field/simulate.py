@@ -36,7 +36,7 @@ if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
 
     from galvo_sysid.model.changes import Drift, StepChange
-    from galvo_sysid.sim.simulator import Move, SimulatorConfig
+    from galvo_sysid.sim.config import Move, SimulatorConfig
 
 __all__ = [
     'SimulationSummary',
@@ -178,7 +178,8 @@ def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
         BagExistsError: ``out`` exists.
     """
     from galvo_sysid.model.effects import parse_effect
-    from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig
+    from galvo_sysid.sim.config import SimulatorConfig
+    from galvo_sysid.sim.simulator import GalvoSimulator
 
     if not angles:
         msg = 'no angles given'

@@ -56,7 +56,6 @@ __all__ = [
     'arx_to_modal',
     'bode_data',
     'continuous_modal_decomposition',
-    'default_bands',
     'modal_decomposition',
     'simulate_zoh',
     'zoh_blocks',

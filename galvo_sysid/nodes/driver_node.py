@@ -45,12 +45,13 @@ from galvo_sysid.nodes.framework import (
     moves_qos,
     run_node,
 )
-from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig
+from galvo_sysid.sim.config import SimulatorConfig
+from galvo_sysid.sim.simulator import GalvoSimulator
 
 if TYPE_CHECKING:
     from collections.abc import Iterator, Sequence
 
-    from galvo_sysid.sim.simulator import Move
+    from galvo_sysid.sim.config import Move
 
 __all__ = ['DriverNode', 'PlantChanges', 'main', 'simulator_config']
 

@@ -31,8 +31,9 @@ from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model.dynamics import InputDynamics
 from galvo_sysid.model.modal import ModalModel
 from galvo_sysid.model.plant import PlantModel
+from galvo_sysid.sim.config import SimulatorConfig
 from galvo_sysid.sim.profiles import ProfileConfig
-from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig
+from galvo_sysid.sim.simulator import GalvoSimulator
 
 __all__ = ['CANDIDATE_ANGLES', 'Scanner', 'random_scanner']
 

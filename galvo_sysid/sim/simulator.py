@@ -20,7 +20,7 @@ jerk-limited reference with acceleration feed-forward u_ff = a_ref / k0 plus a P
 with notches at the three nominal resonances (800 Hz crossover, about 15 dB gain margin and
 46 deg phase margin on the nominal plant).
 
-Noise (defaults, all configurable in :class:`SimulatorConfig`):
+Noise (defaults, all configurable in :class:`~galvo_sysid.sim.config.SimulatorConfig`):
 
 - Encoder: 20 bits over the +-20 deg mechanical range (resolution 40/2^20 = 3.8e-5 deg,
   0.67 urad), the class of digital position detectors of current galvo servos.
@@ -88,7 +88,7 @@ from galvo_sysid.model.paper import PAPER_ANGLES
 from galvo_sysid.model.physics import Physics
 from galvo_sysid.model.plant import PlantModel
 from galvo_sysid.model.sampling import ContinuousPlant, sample_plant
-from galvo_sysid.sim.config import DEFAULT_ENCODER_RESOLUTION, Move, SimulatorConfig
+from galvo_sysid.sim.config import Move, SimulatorConfig
 from galvo_sysid.sim.controller import LoopMargins, design_controller, loop_margins
 from galvo_sysid.sim.loop import ClosedLoop, map_state
 from galvo_sysid.sim.profiles import MoveProfile, move_profile
@@ -96,13 +96,7 @@ from galvo_sysid.sim.profiles import MoveProfile, move_profile
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
-__all__ = [
-    'DEFAULT_ENCODER_RESOLUTION',
-    'GalvoSimulator',
-    'Move',
-    'SimulatorConfig',
-    'simulate_window',
-]
+__all__ = ['GalvoSimulator', 'simulate_window']
 
 @dataclass
 class _State:

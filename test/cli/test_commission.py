@@ -12,8 +12,8 @@ from conftest import VENV_BIN
 
 from galvo_sysid.field.simulate import simulate_bag
 from galvo_sysid.model import load_model
+from galvo_sysid.sim.config import SimulatorConfig
 from galvo_sysid.sim.family import random_scanner
-from galvo_sysid.sim.simulator import SimulatorConfig
 
 SEED = 7   # 27.1 us, 277 samples, 3 modes at 1.07, 1.74 and 3.15 kHz, 2 samples of delay
 

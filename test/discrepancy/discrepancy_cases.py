@@ -31,7 +31,8 @@ def hidden_effects(*items: tuple[str, dict[str, float]]) -> Effects:
 def measured(effects: Effects, seed: int, moves_per_angle: int = MOVES_PER_ANGLE,
              noise: bool = True) -> MoveSet:
     """Moves of the simulated closed loop with hidden effects (the test's truth)."""
-    from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig
+    from galvo_sysid.sim.config import SimulatorConfig
+    from galvo_sysid.sim.simulator import GalvoSimulator
 
     plant = PAPER_MODEL
     for name, params in effects:

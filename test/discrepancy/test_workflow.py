@@ -92,7 +92,8 @@ def test_bad_data_is_refused():
 
 
 def test_augmented_model_drives_the_simulator(tmp_path):
-    from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig
+    from galvo_sysid.sim.config import SimulatorConfig
+    from galvo_sysid.sim.simulator import GalvoSimulator
 
     result = analysed(hidden_effects(CASES[5][:2]), seed=105)
     path = save_model(result.final_model, tmp_path / 'fric.yaml')

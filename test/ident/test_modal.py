@@ -17,7 +17,6 @@ from galvo_sysid.ident.decompose import (
     arx_to_modal,
     bode_data,
     continuous_modal_decomposition,
-    default_bands,
     modal_decomposition,
     simulate_zoh,
     zoh_mode_numerator,
@@ -30,6 +29,7 @@ from galvo_sysid.model import (
     discretize,
     simulate,
 )
+from galvo_sysid.model.modal import default_bands
 
 T = TAU
 NO_DELAY = InputDynamics(computation_delay=0, lag_time_constant=0.0)

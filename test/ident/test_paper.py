@@ -26,7 +26,8 @@ from galvo_sysid.ident.paper import (
     relative_error_table,
 )
 from galvo_sysid.model import PAPER_MODEL, PAPER_TABLE_II, PSI, TAU, InputDynamics
-from galvo_sysid.sim.simulator import SimulatorConfig, simulate_window
+from galvo_sysid.sim.config import SimulatorConfig
+from galvo_sysid.sim.simulator import simulate_window
 
 T = TAU
 PURE_DELAY = InputDynamics(computation_delay=1, lag_time_constant=0.0, dead_time=0.6 * T)

@@ -79,7 +79,8 @@ def test_with_effect_replaces_all_but_resonances():
 
 
 def test_the_file_feeds_the_simulator(tmp_path):
-    from galvo_sysid.sim.simulator import GalvoSimulator, SimulatorConfig
+    from galvo_sysid.sim.config import SimulatorConfig
+    from galvo_sysid.sim.simulator import GalvoSimulator
 
     path = save_model(replace(PAPER_MODEL.with_effect('gain_change', {'gain_ratio': 0.9}),
                               record_length=300), tmp_path / 'g.yaml')

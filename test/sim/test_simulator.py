@@ -22,13 +22,8 @@ from galvo_sysid.model import (
     StepChange,
 )
 from galvo_sysid.model import simulate as simulate_plant
-from galvo_sysid.sim.simulator import (
-    DEFAULT_ENCODER_RESOLUTION,
-    GalvoSimulator,
-    Move,
-    SimulatorConfig,
-    simulate_window,
-)
+from galvo_sysid.sim.config import DEFAULT_ENCODER_RESOLUTION, Move, SimulatorConfig
+from galvo_sysid.sim.simulator import GalvoSimulator, simulate_window
 
 QUIET: dict[str, Any] = {'current_noise_std': 0.0, 'measurement_noise_std': 0.0,
                          'encoder_resolution': 0.0}
