@@ -2,6 +2,10 @@
 
 DEVELOPERS.md lists the subpackages in this order; a module may import its own subpackage and
 the layers below it, never one above (function-level and type-only imports included).
+
+Each name lives in one module and is imported from there: a module exports (``__all__``) only
+what it defines, and ``from galvo_sysid.<module> import name`` names the module defining it
+(a subpackage's ``__init__`` may gather its public API).
 """
 
 from __future__ import annotations
@@ -89,3 +93,58 @@ def test_the_check_sees_an_upward_import(tmp_path: Path, monkeypatch: pytest.Mon
     assert _upward(src) == ['galvo_sysid.cli.main']
     with pytest.raises(AssertionError, match=r'model/m\.py'):
         test_ros_only_in_the_ros_layer()
+
+
+REPO = PACKAGE.parent
+IMPORTERS = ('galvo_sysid', 'test', 'benchmarks', 'tools')
+"""The folders whose imports of galvo_sysid are checked."""
+
+
+def _defined(path: Path) -> set[str]:
+    """The names a module defines at its top level (functions, classes, assignments)."""
+    out: set[str] = set()
+    for node in ast.parse(path.read_text(encoding='utf-8')).body:
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+            out.add(node.name)
+        elif isinstance(node, ast.Assign | ast.AnnAssign):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            out.update(n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name))
+    return out
+
+
+def _exported(path: Path) -> list[str]:
+    for node in ast.parse(path.read_text(encoding='utf-8')).body:
+        if (isinstance(node, ast.Assign | ast.AnnAssign) and isinstance(node.value, ast.List)
+                and any(isinstance(t, ast.Name) and t.id == '__all__'
+                        for t in (node.targets if isinstance(node, ast.Assign)
+                                  else [node.target]))):
+            return [e.value for e in node.value.elts if isinstance(e, ast.Constant)]
+    return []
+
+
+def test_modules_export_only_what_they_define() -> None:
+    bad = {}
+    for path in sorted(PACKAGE.rglob('*.py')):
+        if path.name != '__init__.py':
+            other = sorted(set(_exported(path)) - _defined(path))
+            if other:
+                bad[str(path.relative_to(PACKAGE))] = other
+    assert not bad, f're-exported (import them from where they are defined): {bad}'
+
+
+def test_names_are_imported_from_their_module() -> None:
+    bad = []
+    defined: dict[Path, set[str]] = {}
+    for folder in IMPORTERS:
+        for path in sorted((REPO / folder).rglob('*.py')):
+            for node in ast.walk(ast.parse(path.read_text(encoding='utf-8'))):
+                if not (isinstance(node, ast.ImportFrom) and node.level == 0 and node.module
+                        and node.module.startswith('galvo_sysid.')):
+                    continue
+                module = REPO.joinpath(*node.module.split('.')).with_suffix('.py')
+                if not module.is_file():  # a subpackage: its __init__ is its public API
+                    continue
+                names = defined.setdefault(module, _defined(module))
+                bad.extend(f'{path.relative_to(REPO)}:{node.lineno}: {a.name} from '
+                           f'{node.module}' for a in node.names if a.name not in names)
+    assert not bad, 'not imported from the module defining it: ' + '; '.join(bad)
