@@ -361,7 +361,11 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
                 {'move_id': mid, 'target_angle': window.target_angle, 'stamp': None,
                  'reason': reason} for mid in window.move_ids]))
             return
-        marks.pop(window.index)
+        screened = outcome.result.set_aside
+        late.append((marks.pop(window.index), [
+            {'move_id': window.move_ids[i], 'target_angle': window.target_angle, 'stamp': None,
+             'reason': f'window {window.index}: move set aside by the screening: {why}'}
+            for i, why in screened]))
         verdict = judge.assess(outcome.result, window_index=window.index)
         windows.append(WindowResult(window.index, window.target_angle, window.partial,
                                     window.first_stamp, window.last_stamp, outcome.result,
@@ -400,13 +404,12 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
         for outcome in scheduler.take():
             handle(outcome)
     rejected = _insert(rejected, late)
-    pooled, used, note = _pooled([w.result for w in windows], kept, pooling=pooling,
-                                 model=plant)
+    pooled, used, note, n_pooled = _pooled(windows, kept, pooling=pooling, model=plant)
     why = mismatched[0].reason if mismatched else pairer.period_mismatch
     return BagIdentification(info=info, method=method, window_size=window_size,
                              windows=tuple(windows), pooled=pooled, rejected=tuple(rejected),
                              moves=total / 2, pooling=used if windows else '',
-                             pooled_windows=len(kept) if used == 'joint' else len(windows),
+                             pooled_windows=n_pooled,
                              pooling_note=note, model=model_path, mismatched=tuple(mismatched),
                              model_mismatch=why, reference=judge.reference,
                              reference_name=judge.reference_name,
@@ -452,28 +455,62 @@ def _keep(kept: list[Window], window: Window, *, limit: int) -> None:
         del kept[drop]
 
 
-def _pooled(results: list[IdentificationResult], kept: list[Window], *, pooling: str,
-            model: PlantModel) -> tuple[IdentificationResult | None, str, str | None]:
-    """(pooled estimate, pooling used, note) of the identified windows."""
+def _pooled(windows: list[WindowResult], kept: list[Window], *, pooling: str,
+            model: PlantModel) -> tuple[IdentificationResult | None, str, str | None, int]:
+    """(pooled estimate, pooling used, note, windows pooled) of the identified windows.
+
+    A window whose fit is far below the others' (more than 10 points and 5 robust standard
+    deviations under their median) fits its data much worse than the same model fits the
+    rest: it is left out of the pool, and the note says which.
+    """
     from galvo_sysid.ident.identify import identify_joint
     from galvo_sysid.ident.pool import pool_results
 
+    outliers = _poor_fits(windows)
+    results = [w.result for w in windows if w.window_index not in outliers]
+    kept = [w for w in kept if w.index not in outliers]
+    left_out = None
+    if outliers:
+        left_out = ("left out of the pool for a fit far below the others': " + ', '.join(
+            f'window {i} ({fit:.1f} %)' for i, fit in sorted(outliers.items())))
     # the combination of the windows is a good start: the joint fit starts from it as it is
     if not results:
-        return None, '', None
+        return None, '', left_out, 0
     combined = pool_results(results)
     if pooling != 'joint':
-        return combined, 'inverse-variance', None
+        return combined, 'inverse-variance', left_out, len(results)
     periods = {w.sample_period for w in kept}
     if len(periods) != 1:
         reason = 'windows of different sample periods' if periods else \
             'no window of 3 moves or more'
-        return combined, 'inverse-variance', f'joint fit not made ({reason})'
+        return (combined, 'inverse-variance', _notes(f'joint fit not made ({reason})', left_out),
+                len(results))
     try:
         joint = identify_joint([(w.current, w.encoder) for w in kept],
                                sample_period=periods.pop(), initial=combined,
                                target_angle=combined.target_angle, keep_initial_damping=True,
                                model=model)
     except GalvoSysidError as err:
-        return combined, 'inverse-variance', f'joint fit failed: {one_line(err)}'
-    return joint, 'joint', None
+        return (combined, 'inverse-variance',
+                _notes(f'joint fit failed: {one_line(err)}', left_out), len(results))
+    return joint, 'joint', left_out, len(kept)
+
+
+def _notes(*notes: str | None) -> str | None:
+    text = '; '.join(n for n in notes if n)
+    return text or None
+
+
+def _poor_fits(windows: list[WindowResult]) -> dict[int, float]:
+    """Windows whose fit is far below the others' (see :func:`_pooled`), with their fit."""
+    import numpy as np
+
+    fits = np.array([w.result.fit_percent for w in windows], dtype=float)
+    ok = np.isfinite(fits)
+    if np.count_nonzero(ok) < 3:
+        return {}
+    median = float(np.median(fits[ok]))
+    spread = 1.4826 * float(np.median(np.abs(fits[ok] - median)))
+    limit = median - max(10.0, 5.0 * spread)
+    return {w.window_index: float(f) for w, f in zip(windows, fits, strict=True)
+            if not f >= limit}

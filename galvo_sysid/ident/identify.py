@@ -48,6 +48,7 @@ from galvo_sysid.ident.preprocess import MIN_ANGLE_SPAN, validate_records
 from galvo_sysid.ident.refine import DEFAULT_RESOLVE_Z as RESOLVE_Z
 from galvo_sysid.ident.refine import RefineOptions, model_fit_percent, refine_fit, refine_joint
 from galvo_sysid.ident.result import IdentificationResult, result_from_vectors
+from galvo_sysid.ident.screen import DEFAULT_SCREEN_LIMIT, screen_moves
 from galvo_sysid.model import PAPER_MODEL, ModalModel, PlantModel
 from galvo_sysid.model.dynamics import InputDynamics, check_sample_period
 
@@ -129,7 +130,10 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
             ``bands``).
         **options: Passed on. Common: ``bands`` (per-mode frequency bands [rad/s], default
             the model's), ``reference`` (modal model of the start and the paper pipeline's
-            mode selection, default the model's), ``min_angle_span`` [deg]. Paper methods:
+            mode selection, default the model's), ``min_angle_span`` [deg],
+            ``screen_limit`` (moves deviating from the others by more robust standard
+            deviations are set aside, :func:`~galvo_sysid.ident.screen.screen_moves`;
+            default 10, 0: none). Paper methods:
             ``delay`` (default the model's equivalent delay; None estimates it), ``na``,
             ``nb``, ``solver``, ``max_damping``, ``jackknife_groups`` (default 10; 0 for no
             std, reported as nan). Refined: the input dynamics ``lag_time_constant`` (the
@@ -168,6 +172,7 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
     if len(bands) != n:
         raise ConfigurationError(f'{len(bands)} bands for {n} modes')
     groups = int(opts.pop('jackknife_groups', _JACKKNIFE_GROUPS))
+    screen_limit = float(opts.pop('screen_limit', DEFAULT_SCREEN_LIMIT))
     allowed = _PAPER_KEYS | (_REFINED_KEYS if method == 'refined' else set())
     unknown = set(opts) - allowed
     if unknown:
@@ -175,6 +180,7 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
     paper_opts = {k: opts[k] for k in _PAPER_KEYS & set(opts)}
     paper_opts.setdefault('delay', plant.equivalent_delay)
     paper_opts.update(bands=bands, reference=reference, min_angle_span=min_span)
+    current, encoder, set_aside = _screen(current, encoder, model=plant, limit=screen_limit)
     cur, enc = validate_records(current, encoder, na=paper_opts.get('na', 15),
                                 nb=paper_opts.get('nb', 15), min_angle_span=min_span)
     enc = enc - enc[:, :1]
@@ -193,7 +199,7 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
         return result_from_vectors(found.parameters(), stds, n_modes=found.n_modes,
                              target_angle=angle, moves=moves, input_delay=delay,
                              lag_time_constant=0.0, fit_percent=fit, method=method,
-                             resolved=resolved)
+                             resolved=resolved, set_aside=set_aside)
     # Refined: start from the paper pipeline (method A); its failure is not fatal because the
     # refined fit scans every band for its own start.
     try:
@@ -210,7 +216,27 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
                          target_angle=angle, moves=moves, input_delay=refined.input_delay,
                          lag_time_constant=refined.lag_time_constant,
                          fit_percent=refined.fit_percent, method='refined',
-                         resolved=refined.resolved)
+                         resolved=refined.resolved, set_aside=set_aside)
+
+
+def _screen(current: ArrayLike, encoder: ArrayLike, *, model: PlantModel,
+            limit: float) -> tuple[ArrayLike, ArrayLike, tuple[tuple[int, str], ...]]:
+    """The window without the moves :func:`~galvo_sysid.ident.screen.screen_moves` sets aside.
+
+    Records that are not two numeric (M, N) arrays of one shape are passed on unscreened (the
+    validation says what is wrong with them).
+    """
+    try:
+        cur = np.asarray(current, dtype=float)
+        enc = np.asarray(encoder, dtype=float)
+    except (TypeError, ValueError):
+        return current, encoder, ()
+    if cur.ndim != 2 or cur.shape != enc.shape or cur.shape[1] <= 2 or limit == 0:
+        return current, encoder, ()
+    found = screen_moves(cur, enc, model=model, limit=limit)
+    if not found.reasons:
+        return cur, enc, ()
+    return cur[found.keep], enc[found.keep], found.reasons
 
 
 def check_model_period(model: PlantModel, sample_period: float) -> None:
@@ -292,12 +318,14 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
         bands = plant.mode_bands()
     min_span = float(opts.get('min_angle_span', MIN_ANGLE_SPAN))
     unknown = set(opts) - _REFINED_KEYS - _PAPER_KEYS - {'reference', 'bands',
-                                                          'min_angle_span'}
+                                                          'min_angle_span', 'screen_limit'}
     if unknown:
         raise ConfigurationError(f'unknown options for identify_joint: {sorted(unknown)}')
+    screen_limit = float(opts.get('screen_limit', DEFAULT_SCREEN_LIMIT))
     records = []
     for j, (current, encoder) in enumerate(windows):
         try:
+            current, encoder, _ = _screen(current, encoder, model=plant, limit=screen_limit)
             cur, enc = validate_records(current, encoder, min_records=3, min_angle_span=min_span)
         except InvalidDataError as exc:
             raise InvalidDataError(f'window {j}: {exc}') from exc

@@ -35,6 +35,8 @@ class IdentificationResult:
         resolved: Per mode, whether the data place it (its residue is significant, at least
             5 standard deviations); an unresolved mode's numbers say nothing (its std is
             widened to its band).
+        set_aside: ``(move index, reason)`` of the window's moves left out by the screening
+            (:func:`~galvo_sysid.ident.screen.screen_moves`); ``moves`` counts the rest.
     """
 
     target_angle: float
@@ -52,6 +54,7 @@ class IdentificationResult:
     fit_percent: float
     method: str
     resolved: tuple[bool, ...] = ()
+    set_aside: tuple[tuple[int, str], ...] = ()
 
     @property
     def model(self) -> ModalModel:

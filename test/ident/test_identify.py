@@ -19,7 +19,7 @@ from galvo_sysid.sim.simulator import simulate_window
 FIELDS = ('target_angle', 'moves', 'input_delay', 'lag_time_constant', 'k0', 'residues',
           'natural_frequencies', 'damping_ratios', 'k0_std', 'residues_std',
           'natural_frequencies_std', 'damping_ratios_std', 'fit_percent', 'method',
-          'resolved')
+          'resolved', 'set_aside')
 
 
 @pytest.fixture(scope='module')
@@ -140,8 +140,12 @@ def test_bad_input_raises_typed_errors(windows_1psi: list) -> None:
     cur, enc = windows_1psi[0]
     bad = enc.copy()
     bad[3, 100] = np.inf
+    # a move with Inf is set aside by the screening (issue 12: no other data lost) ...
+    assert identify_window(cur, bad, sample_period=TAU).set_aside == (
+        (3, 'move has NaN or Inf samples'),)
+    # ... and refused without it
     with pytest.raises(InvalidDataError, match='NaN or Inf'):
-        identify_window(cur, bad, sample_period=TAU)
+        identify_window(cur, bad, sample_period=TAU, screen_limit=0)
     with pytest.raises(InvalidDataError, match='shapes differ'):
         identify_window(cur[:, :-1], enc, sample_period=TAU)
     with pytest.raises(InvalidDataError, match='at least'):
