@@ -12,7 +12,9 @@ __all__ = [
     'BagError',
     'BagExistsError',
     'BagNotFoundError',
+    'BagWriteError',
     'CorruptBagError',
+    'IncompleteBagError',
     'NoGalvoTopicsError',
     'WrongTopicTypeError',
     'reason',
@@ -41,6 +43,17 @@ class WrongTopicTypeError(BagError):
 
 class BagExistsError(BagError, FileExistsError):
     """The output bag already exists (bags are never overwritten)."""
+
+
+class IncompleteBagError(CorruptBagError):
+    """The bag was not closed (its recording was interrupted or still runs, or it was cut).
+
+    ``galvo-sysid bag recover`` makes it readable.
+    """
+
+
+class BagWriteError(BagError, OSError):
+    """Writing a bag failed (e.g. a full disk); the message says what the bag kept."""
 
 
 def reason(err: BaseException) -> str:

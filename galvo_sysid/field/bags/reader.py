@@ -31,6 +31,7 @@ from galvo_sysid.field.bags.errors import (
     WrongTopicTypeError,
     reason,
 )
+from galvo_sysid.field.bags.recovery import check_complete
 from galvo_sysid.interfaces.topics import MOVE_SAMPLES, SIGNAL_TOPICS
 
 if TYPE_CHECKING:
@@ -159,6 +160,7 @@ class BagReader(BagFile):
             raise BagNotFoundError(msg)
         if self.path.is_file() and self.path.name == 'metadata.yaml':
             self.path = self.path.parent
+        check_complete(self.path)  # an unfinished recording is not read as empty
         if self.path.is_dir() and not (self.path / 'metadata.yaml').exists():
             storage_files = sorted([*self.path.glob('*.mcap'), *self.path.glob('*.db3')])
             if len(storage_files) != 1:
