@@ -28,6 +28,7 @@ effect                   parameters
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -42,15 +43,20 @@ __all__ = [
     'EFFECTS',
     'EFFECT_NAMES',
     'MAX_EFFECTS',
+    'MAX_JSON_DEPTH',
     'Effect',
     'EffectType',
     'ParameterSpec',
+    'effects_from_json',
     'effects_from_list',
     'parse_effect',
 ]
 
 MAX_EFFECTS = 32
 """Most effects one model may carry."""
+
+MAX_JSON_DEPTH = 8
+"""Deepest nesting of brackets in effects given as JSON (the list form needs 3)."""
 
 
 @dataclass(frozen=True)
@@ -81,7 +87,7 @@ class ParameterSpec:
             raise ConfigurationError(f'{effect}: {self.name} must be a number, got {value!r}')
         try:
             v = float(value)
-        except ValueError:
+        except (ValueError, OverflowError):  # not a number, an integer beyond float
             raise ConfigurationError(
                 f'{effect}: {self.name} must be a number, got {value!r}') from None
         if math.isnan(v) or (math.isinf(v) and not (self.allow_inf and v > 0)):
@@ -273,3 +279,74 @@ def parse_effect(text: str) -> Effect:
     if not name.strip():
         raise ConfigurationError(f'bad effect {text!r}: no effect name')
     return Effect.create(name.strip(), params)
+
+
+def _json_depth(text: str) -> int:
+    """The deepest nesting of ``[`` / ``{`` in ``text`` outside JSON strings (no parsing)."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for c in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif c == '\\':
+                escaped = True
+            elif c == '"':
+                in_string = False
+        elif c == '"':
+            in_string = True
+        elif c in '[{':
+            depth += 1
+            deepest = max(deepest, depth)
+        elif c in ']}':
+            depth -= 1
+    return deepest
+
+
+def _json_constant(name: str) -> Any:
+    raise ConfigurationError(f'{name} is not a JSON number')
+
+
+def _json_int(text: str) -> int:
+    if len(text.lstrip('-')) > 20:
+        raise ConfigurationError(f'integer {text[:20]}... is too long')
+    return int(text)
+
+
+def effects_from_json(text: str, *, where: str = 'effects',
+                      max_chars: int = 65_536) -> tuple[Effect, ...]:
+    """Effects from their JSON list (the ``galvo_driver``'s ``effects`` parameter): the size
+    and the nesting are bounded before parsing, numbers must be JSON numbers (no strings,
+    NaN or Infinity), then :func:`effects_from_list` checks each entry with the registry.
+
+    Args:
+        text: ``[{"effect": NAME, "parameters": {...}}, ...]`` ("" is no effect).
+        where: How an error names the value.
+        max_chars: Longest text accepted.
+
+    Raises:
+        ConfigurationError: Too long, nested too deeply, not valid JSON, or a bad effect
+            (one line naming the entry).
+    """  # noqa: D205
+    if not isinstance(text, str):
+        raise ConfigurationError(f'{where} must be JSON text, got {type(text).__name__}')
+    if len(text) > max_chars:
+        raise ConfigurationError(f'{where}: longer than {max_chars} characters')
+    if _json_depth(text) > MAX_JSON_DEPTH:
+        raise ConfigurationError(f'{where}: JSON nested deeper than {MAX_JSON_DEPTH}')
+    try:
+        items = json.loads(text or '[]', parse_constant=_json_constant, parse_int=_json_int)
+    except ConfigurationError as err:
+        raise ConfigurationError(f'{where}: {err}') from None
+    except (ValueError, RecursionError) as err:  # JSONDecodeError is a ValueError
+        raise ConfigurationError(f'{where} is not valid JSON: {err}') from None
+    if isinstance(items, list):
+        for i, item in enumerate(items, start=1):
+            params = item.get('parameters') if isinstance(item, dict) else None
+            for key, value in (params.items() if isinstance(params, dict) else ()):
+                if isinstance(value, str):
+                    text_value = value if len(value) <= 40 else f'{value[:37]}...'
+                    raise ConfigurationError(f'{where}[{i}]: {item.get("effect")!s:.40}: '
+                                             f'{key!s:.40} must be a number, got '
+                                             f'{text_value!r}')
+    return effects_from_list(items, where=where)
