@@ -16,6 +16,7 @@ import sys
 import time
 from typing import TYPE_CHECKING, Any, TextIO
 
+from galvo_sysid.errors import GalvoSysidError, one_line
 from galvo_sysid.jsonsafe import json_safe
 
 if TYPE_CHECKING:
@@ -28,6 +29,7 @@ __all__ = [
     'Progress',
     'add_subcommand',
     'finite_float',
+    'guarded',
     'nonnegative_int',
     'parse_angle',
     'positive',
@@ -130,6 +132,38 @@ def _number(text: str, kind: type[int] | type[float], what: str, need: str,
         msg = f'must be {need}: {text!r}'
         raise argparse.ArgumentTypeError(msg)
     return value
+
+
+# --------------------------------------------------------------------------- running
+
+
+def guarded(where: str, call: Callable[[], int]) -> int:
+    """Run a subcommand's ``call()`` and return its exit code; bad input ends in one line.
+
+    Whatever bad input can raise, from galvo_sysid or from a library deep below it, becomes
+    ``<where>: error: <message>`` on stderr and exit code 1, never a traceback:
+    :class:`~galvo_sysid.errors.GalvoSysidError` and ``OSError`` (unwritable output, full disk,
+    ...) with their message; ``ValueError``, ``ArithmeticError`` and ``RecursionError`` (a
+    numerics library refusing a value the checks let through) with their type's name too;
+    ``MemoryError`` as such. Ctrl-C ends in ``<where>: interrupted`` and exit code 130.
+
+    Args:
+        where: The command as the error line names it (``galvo-sysid identify``).
+        call: Runs the subcommand, returns its exit code.
+    """
+    try:
+        return int(call())
+    except (GalvoSysidError, OSError) as err:
+        print(f'{where}: error: {one_line(err)}', file=sys.stderr)
+    except MemoryError:
+        print(f'{where}: error: out of memory (the input is too large for this machine)',
+              file=sys.stderr)
+    except (ValueError, ArithmeticError, RecursionError) as err:
+        print(f'{where}: error: {type(err).__name__}: {one_line(err)}', file=sys.stderr)
+    except KeyboardInterrupt:
+        print(f'{where}: interrupted', file=sys.stderr)
+        return 130
+    return 1
 
 
 # --------------------------------------------------------------------------- output

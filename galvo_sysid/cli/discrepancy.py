@@ -13,8 +13,7 @@ import sys
 from typing import TYPE_CHECKING, Any
 
 from galvo_sysid import limit_blas_threads
-from galvo_sysid.cli.common import HelpFormatter, finite_float, positive, print_json
-from galvo_sysid.errors import one_line
+from galvo_sysid.cli.common import HelpFormatter, finite_float, guarded, positive, print_json
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -149,22 +148,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run ``discrepancy`` alone (``python -m galvo_sysid.cli.discrepancy``)."""
     limit_blas_threads()  # before numpy is imported
     from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD
-    from galvo_sysid.errors import GalvoSysidError
     from galvo_sysid.model.effects import EFFECT_NAMES
 
     parser = argparse.ArgumentParser(prog='galvo-sysid discrepancy', description=_DESCRIPTION,
                                      epilog=_EPILOG, formatter_class=HelpFormatter)
     _arguments(parser, DEFAULT_THRESHOLD, EFFECT_NAMES)
     args = parser.parse_args(argv)
-    try:
-        return run(args)
-    except (GalvoSysidError, OSError) as err:
-        print(f'galvo-sysid discrepancy: error: {one_line(err)}', file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print('galvo-sysid discrepancy: interrupted', file=sys.stderr)
-        return 130
-
+    return guarded('galvo-sysid discrepancy', lambda: run(args))
 
 if __name__ == '__main__':  # pragma: no cover
     sys.exit(main())

@@ -15,7 +15,7 @@ from galvo_sysid.cli.common import BAG_HELP, Progress, add_subcommand, positive,
 if TYPE_CHECKING:
     from galvo_sysid.field.offline import BagIdentification
 
-__all__ = ['add_parser', 'cpus', 'format_identification', 'run']
+__all__ = ['add_parser', 'format_identification', 'run']
 
 _DESCRIPTION = (
     'Identify the scanner from a bag with the same code as the sysid node (so the\n'
@@ -96,8 +96,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         'node) and tolerances of the drift verdicts (default: the reference '
                         'is the --model)')
     p.add_argument('--jobs', type=positive(int), default=None, metavar='N',
-                   help='windows fitted in parallel (default: one per CPU); the numbers do '
-                        'not depend on it')
+                   help='windows fitted in parallel (default and most: one per CPU, fewer '
+                        'when memory is short); the numbers do not depend on it')
     p.add_argument('--pooling', choices=('joint', 'inverse-variance'), default=None,
                    help='pooled estimate: one joint fit to all windows (default for refined; '
                         'sharpest) or the inverse-variance combination of the windows '
@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     Raises:
         GalvoSysidError: Bad bag, model or parameter file (the caller prints one line).
     """
-    from galvo_sysid.field.offline import identify_bag, load_node_parameters
+    from galvo_sysid.field.offline import identify_bag, job_limit, load_node_parameters
     from galvo_sysid.monitor.reference import monitor_from_parameters
 
     if args.plot:  # say a bad file name before the work, not after
@@ -139,13 +139,17 @@ def run(args: argparse.Namespace) -> int:
     if args.watchdog_params:
         monitor = monitor_from_parameters(load_node_parameters(args.watchdog_params,
                                                                'watchdog'))
+    limit, why = job_limit()  # one process per CPU, as memory allows
+    if args.jobs is not None and args.jobs > limit:
+        print(f'identify: --jobs {args.jobs}: {limit} process(es) at most here ({why})',
+              file=sys.stderr)
     progress = Progress(sys.stderr, 'identify', enabled=not args.json)
     try:
         found = identify_bag(args.bag, method=str(sysid['method']),
                              window_size=int(sysid['window_size']),
                              min_partial=args.min_partial, namespace=args.namespace,
                              monitor=monitor, na=int(sysid['na']), nb=int(sysid['nb']),
-                             windower=sysid, jobs=args.jobs or cpus(),
+                             windower=sysid, jobs=min(args.jobs or limit, limit),
                              pooling=args.pooling, model=model, model_path=model_path,
                              progress=progress)
     finally:
@@ -168,17 +172,6 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 1
     return 0
-
-
-def cpus() -> int:
-    """The CPUs this process may run on (the default of ``--jobs``)."""
-    import os
-
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
-
 
 
 def format_identification(found: BagIdentification) -> str:

@@ -12,8 +12,9 @@ shared pieces in :mod:`galvo_sysid.cli.common`):
 Other modules add subcommands by being listed in :data:`PLUGINS` and defining
 ``register(subparsers)`` (see :func:`build_parser`).
 
-Exit codes: 0 success, 1 bad input or nothing identified (one line on stderr, no traceback),
-2 wrong usage, 130 interrupted.
+Exit codes: 0 success, 1 bad input or nothing identified (one line on stderr, no traceback:
+:func:`galvo_sysid.cli.common.guarded`), 2 wrong usage (an option's value refused by the
+parser), 130 interrupted.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from typing import TYPE_CHECKING
 
 from galvo_sysid import limit_blas_threads
 from galvo_sysid.cli import echo, identify, info, record, replay, simulate
-from galvo_sysid.errors import one_line
+from galvo_sysid.cli.common import guarded
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -40,8 +41,8 @@ PLUGINS = ('galvo_sysid.cli.commission', 'galvo_sysid.cli.discrepancy')
 its parser(s) and sets ``func`` (``args -> exit code``) as the parser default. ``register``
 runs for every command except the built-in ones of :data:`COMMANDS` (so also for ``--help``
 and the plugins' own commands); it should import nothing heavy: the numerics belong in
-``func``. Errors derived from ``GalvoSysidError`` raised by ``func`` become one line on
-stderr and exit code 1."""
+``func``. Errors of bad input raised by ``func`` become one line on stderr and exit code 1
+(:func:`~galvo_sysid.cli.common.guarded`)."""
 
 COMMANDS = ('simulate', 'identify', 'info', 'record', 'replay', 'echo')
 """The built-in subcommands: running one of them registers no plugin (process start counts,
@@ -107,17 +108,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     words = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(plugins=not words or words[0] not in COMMANDS)
     args = parser.parse_args(words)
-    from galvo_sysid.errors import GalvoSysidError
-
-    where = f'{PROG} {args.command}'
-    try:
-        return int(args.func(args))
-    except (GalvoSysidError, OSError) as err:  # OSError: unwritable output, full disk, ...
-        print(f'{where}: error: {one_line(err)}', file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(f'{where}: interrupted', file=sys.stderr)
-        return 130
+    return guarded(f'{PROG} {args.command}', lambda: args.func(args))
 
 
 if __name__ == '__main__':  # pragma: no cover

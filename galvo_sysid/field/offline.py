@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import collections
 import functools
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -49,6 +50,7 @@ if TYPE_CHECKING:
     from galvo_sysid.model import ModalModel, PlantModel
     from galvo_sysid.monitor.drift import DriftMonitor
     from galvo_sysid.monitor.moves import Window
+    from galvo_sysid.monitor.parameters import ParamSpec
     from galvo_sysid.monitor.rejections import Rejection
     from galvo_sysid.monitor.scheduler import FitOutcome
     from galvo_sysid.monitor.verdict import DriftVerdict
@@ -60,6 +62,7 @@ __all__ = [
     'MismatchedWindow',
     'WindowResult',
     'identify_bag',
+    'job_limit',
     'load_node_parameters',
     'rejection_to_dict',
 ]
@@ -75,15 +78,48 @@ JOINT_WINDOWS = 64
 """Windows held for the joint fit at most (about 0.8 MB each for 100 moves of 512 samples)."""
 
 
-def _flatten(tree: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in tree.items():
-        name = f'{prefix}{key}'
-        if isinstance(value, Mapping):
-            out.update(_flatten(value, f'{name}.'))
-        else:
-            out[name] = value
-    return out
+JOB_BYTES = 200_000_000
+"""Memory set aside per fit process when :func:`job_limit` caps the processes [bytes] (a
+forked child fitting windows of 100 moves of 512 samples peaks near 60 MB; the rest is
+margin for longer records and the parent's own share)."""
+
+
+def job_limit() -> tuple[int, str]:
+    """The most fit processes worth starting here, and why (``'2 CPU(s)'``, ...).
+
+    The CPUs this process may run on (more processes only take turns), and the memory
+    available (``MemAvailable`` of ``/proc/meminfo``, where there is one) over
+    :data:`JOB_BYTES`: ``identify --jobs 40`` must not start 41 processes on two cores.
+    """
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cpus = os.cpu_count() or 1
+    limit, why = max(1, cpus), f'{max(1, cpus)} CPU(s)'
+    available = _available_memory()
+    if available is not None and available // JOB_BYTES < limit:
+        limit = max(1, available // JOB_BYTES)
+        why = f'{available / 1e9:.1f} GB of memory available'
+    return limit, why
+
+
+def _available_memory() -> int | None:
+    """``MemAvailable`` of ``/proc/meminfo`` [bytes], None where unknown."""
+    try:
+        with open('/proc/meminfo', encoding='ascii') as f:
+            for line in f:
+                if line.startswith('MemAvailable:'):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+_ROS_PARAMETERS = frozenset({'use_sim_time', 'start_type_description_service'})
+"""Parameters every ROS 2 node has (not galvo_sysid's; a parameter file may set them)."""
+
+_MAX_NESTING = 8
+"""Deepest nesting of parameter names (``a.b.c...``) read from a parameter file."""
 
 
 def load_node_parameters(path: str | os.PathLike[str], node: str) -> dict[str, Any]:
@@ -91,13 +127,28 @@ def load_node_parameters(path: str | os.PathLike[str], node: str) -> dict[str, A
 
     Sections apply as ROS applies them: ``/**`` first, then sections naming the node (with or
     without namespace, e.g. ``sysid`` or ``/scanner_1/sysid``), later ones winning. The file is
-    read by :func:`galvo_sysid.schema.load_yaml` (numbers as ROS reads them, no aliases).
+    read by :func:`galvo_sysid.schema.load_yaml` (numbers as ROS reads them, no aliases) and
+    checked as strictly as the node would take it: a node's section holds ``ros__parameters``
+    only; each value has its parameter's declared type (:mod:`galvo_sysid.monitor.parameters`:
+    ``10.7`` or ``"abc"`` is no ``window_size``, ``2`` no ``pair_timeout``: ROS refuses an
+    integer for a floating-point parameter, write ``2.0``) and lies in its range; a name the
+    node does not declare is refused, except, in a ``/**`` section, another galvo node's
+    parameters and ROS's own (``use_sim_time``, ``qos_overrides...``). The watchdog's
+    tolerances of modes beyond the declared three (``tolerances.k4``, ...) are read too.
+
+    Returns:
+        The node's parameters given in the file, by name, as written.
 
     Raises:
-        ConfigurationError: Unreadable file or no section for the node.
+        ConfigurationError: Unreadable file, no section for the node, or a bad section, name
+            or value (one line naming the file and the parameter).
     """
+    from galvo_sysid.monitor.parameters import NODE_PARAMETERS
     from galvo_sysid.schema import load_yaml
 
+    if node not in NODE_PARAMETERS:
+        msg = f'unknown node {node!r}; known: {", ".join(NODE_PARAMETERS)}'
+        raise ConfigurationError(msg)
     try:
         doc = load_yaml(path, what='parameter file')
     except InvalidDataError as err:  # missing, not a regular file, not text
@@ -107,17 +158,112 @@ def load_node_parameters(path: str | os.PathLike[str], node: str) -> dict[str, A
     if not isinstance(doc, Mapping):
         msg = f'parameter file {path} is not a mapping of node names'
         raise ConfigurationError(msg)
-    wildcard = [v for k, v in doc.items() if str(k) in {'/**', '**'}]
-    named = [v for k, v in doc.items() if str(k).rstrip('/').split('/')[-1] == node]
-    values: dict[str, Any] = {}
-    for section in (*wildcard, *named):
-        params = section.get('ros__parameters') if isinstance(section, Mapping) else None
-        if isinstance(params, Mapping):
-            values.update(_flatten(params))
+    wildcard = [(str(k), v) for k, v in doc.items() if str(k) in {'/**', '**'}]
+    named = [(str(k), v) for k, v in doc.items() if str(k).rstrip('/').split('/')[-1] == node]
     if not wildcard and not named:
         msg = f'parameter file {path} has no section for node {node!r} (nor /**)'
         raise ConfigurationError(msg)
+    others = {s.name for name, specs in NODE_PARAMETERS.items() if name != node
+              for s in specs}
+    values: dict[str, Any] = {}
+    for key, section in (*wildcard, *named):
+        where = f'parameter file {path}: {key}'
+        if not isinstance(section, Mapping) or set(section) - {'ros__parameters'}:
+            msg = f'{where} must hold ros__parameters only'
+            raise ConfigurationError(msg)
+        params = section.get('ros__parameters')
+        if params is None:
+            continue
+        for name, value in _flatten(params, where=f'{where}: ros__parameters').items():
+            spec = _parameter_spec(node, name)
+            if spec is None and node == 'watchdog' and name.startswith('reference.'):
+                values[name] = value  # of older versions: reference_from_parameters says so
+                continue
+            if spec is None:
+                if name in _ROS_PARAMETERS or name.startswith('qos_overrides.') or (
+                        key in {'/**', '**'} and name in others):
+                    continue  # ROS's own, or another node's in a section for all nodes
+                msg = f'{where}: {node} has no parameter {_short(repr(name))} (a typo?)'
+                raise ConfigurationError(msg)
+            why = _parameter_type_error(spec, value) or spec.check(value)
+            if why is not None:
+                raise ConfigurationError(f'{where}: {_short(why)}')
+            values[name] = value
     return values
+
+
+def _flatten(tree: Any, *, where: str, prefix: str = '', depth: int = 0) -> dict[str, Any]:
+    """A parameter file's nested mapping as ``{'a.b': value}`` (keys must be text)."""
+    if not isinstance(tree, Mapping):
+        msg = f'{where} must be a mapping of parameter names, got {type(tree).__name__}'
+        raise ConfigurationError(msg)
+    if depth > _MAX_NESTING:
+        msg = f'{where}: parameter names nested deeper than {_MAX_NESTING}'
+        raise ConfigurationError(msg)
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        if not isinstance(key, str):
+            msg = f'{where}: parameter name {_short(repr(key))} is not text'
+            raise ConfigurationError(msg)
+        name = f'{prefix}{key}'
+        if isinstance(value, Mapping):
+            out.update(_flatten(value, where=where, prefix=f'{name}.', depth=depth + 1))
+        else:
+            out[name] = value
+    return out
+
+
+def _parameter_spec(node: str, name: str) -> ParamSpec | None:
+    """The declared parameter ``name`` of ``node`` (the watchdog's tolerances of any mode of a
+    model: up to :data:`~galvo_sysid.model.plant.MAX_MODES`), or None."""  # noqa: D205, D209
+    from galvo_sysid.model.plant import MAX_MODES
+    from galvo_sysid.monitor.parameters import NODE_PARAMETERS, tolerance_specs
+    from galvo_sysid.monitor.tolerances import split_parameter_name
+
+    for spec in NODE_PARAMETERS[node]:
+        if spec.name == name:
+            return spec
+    if node == 'watchdog' and name.startswith('tolerances.'):
+        split = split_parameter_name(name.split('.', 1)[1])
+        if split is not None and 1 <= split[1] <= MAX_MODES:
+            found = [s for s in tolerance_specs(split[1], first_mode=split[1]) if s.name == name]
+            return found[0] if found else None
+    return None
+
+
+def _parameter_type_error(spec: ParamSpec, value: Any) -> str | None:
+    """Why ``value`` does not have the type ROS gives ``spec`` (its default's), or None."""
+    default = spec.default
+
+    def kind(v: Any, *, article: bool = True) -> str:
+        text = {bool: 'a boolean', int: 'an integer', float: 'a floating-point number',
+                str: 'text', list: 'a list', type(None): 'null'}.get(type(v), type(v).__name__)
+        return text if article else text.split(' ', 1)[-1]
+
+    def number(v: Any) -> bool:
+        return isinstance(v, int | float) and not isinstance(v, bool)
+
+    if default is None:  # an optional number: dynamically typed
+        ok = value is None or number(value)
+        need = 'a number (or null: not set)'
+    elif isinstance(default, list):
+        item = type(default[0]) if default else float
+        ok = isinstance(value, list) and all(type(v) is item for v in value)
+        need = f'a list of {kind(item(), article=False)}s'
+    else:
+        ok = type(value) is type(default)
+        need = kind(default)
+        if isinstance(default, float) and type(value) is int:
+            need += f' (ROS refuses an integer here: write {value}.0)'
+    if ok:
+        return None
+    got = 'null' if value is None else f'{kind(value)} {_short(repr(value))}'
+    return f'{spec.name} must be {need}, got {got}'
+
+
+def _short(text: str, limit: int = 200) -> str:
+    """``text`` cut to ``limit`` characters (a value quoted in an error line)."""
+    return text if len(text) <= limit else f'{text[:limit - 3]}...'
 
 
 def rejection_to_dict(rejection: Rejection | SetAside) -> dict[str, Any]:
@@ -196,7 +342,8 @@ class BagIdentification:
         windows: Identified windows, in the order they were completed.
         pooled: Pooled estimate over all windows (None without windows).
         rejected: Set-aside moves and messages, JSON-ready (see :func:`rejection_to_dict`).
-        moves: Move halves read from the bag (current and encoder messages) / 2.
+        moves: Move halves read from the bag (current and encoder messages) / 2: the messages
+            actually read, whatever the bag's metadata claims.
         pooling: How ``pooled`` was made: ``'joint'`` or ``'inverse-variance'`` (see
             :data:`POOLINGS`; ``''`` without windows).
         pooled_windows: Windows that went into ``pooled``.
@@ -283,10 +430,11 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
             :data:`~galvo_sysid.monitor.parameters.WINDOWER_PARAMETERS` (``window_size`` here
             is overridden by the argument).
         jobs: Windows fitted in parallel by this many forked processes (1: on one thread of
-            this process), by :class:`~galvo_sysid.monitor.scheduler.WindowScheduler`, the
-            sysid node's. The results do not depend on it: each window's fit is the same
-            function call, and the outcomes come back in window order (the drift monitor
-            judges the windows in order, the lists keep their order).
+            this process; at most :func:`job_limit`), by
+            :class:`~galvo_sysid.monitor.scheduler.WindowScheduler`, the sysid node's. The
+            results do not depend on it: each window's fit is the same function call, and
+            the outcomes come back in window order (the drift monitor judges the windows in
+            order, the lists keep their order).
         pooling: ``'joint'`` (default for ``'refined'``) or ``'inverse-variance'`` (default,
             and the only choice, for the paper methods); see the module docs.
         joint_windows: Windows held for the joint fit at most (memory): beyond, the oldest
@@ -317,6 +465,7 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
     if int(jobs) < 1:
         msg = f'jobs must be >= 1, got {jobs}'
         raise ConfigurationError(msg)
+    jobs = min(int(jobs), job_limit()[0])  # more processes than CPUs or memory only cost
     pooling = ('joint' if method == 'refined' else 'inverse-variance') if pooling is None \
         else pooling
     if pooling not in POOLINGS or (pooling == 'joint' and method != 'refined'):
@@ -388,6 +537,7 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
             current, encoder = reader.galvo_topics(namespace=namespace)
             info = reader.info
             total = sum(t.count for t in info.topics if t.topic in {current, encoder})
+            done = 0  # messages read (what the report counts, not what the bag claims)
             for done, item in enumerate(reader.move_halves(namespace=namespace), start=1):
                 if isinstance(item, SetAside):
                     rejected.append(item.to_dict())
@@ -408,7 +558,7 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
     why = mismatched[0].reason if mismatched else pairer.period_mismatch
     return BagIdentification(info=info, method=method, window_size=window_size,
                              windows=tuple(windows), pooled=pooled, rejected=tuple(rejected),
-                             moves=total / 2, pooling=used if windows else '',
+                             moves=done / 2, pooling=used if windows else '',
                              pooled_windows=n_pooled,
                              pooling_note=note, model=model_path, mismatched=tuple(mismatched),
                              model_mismatch=why, reference=judge.reference,

@@ -1,0 +1,87 @@
+"""Hostile and faulty input on the command line: one error line, never a traceback (issue 12).
+
+The reproductions of ../shared/reliability_repro/07_tracebacks_and_yaml.sh and 08, 10 (the
+file and command-line parts), run as a user would.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+BAGS = Path(__file__).resolve().parents[2] / 'bags'
+NOMINAL = BAGS / 'nominal'
+MODEL_HEAD = ('format: galvo_sysid/plant_model\nversion: 1\nmechanics: {k0: 3.564e6, modes: '
+              '[{natural_frequency: 71080.0, damping_ratio: 0.006218, residue: 2069000.0}]}\n')
+
+
+def run(*args: str | Path, timeout: float = 120,
+        memory: int | None = None) -> subprocess.CompletedProcess[str]:
+    """``galvo-sysid ARGS`` (with at most ``memory`` bytes of address space)."""
+    def limit() -> None:
+        import resource
+
+        if memory is not None:
+            resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
+
+    return subprocess.run([str(Path(sys.executable).parent / 'galvo-sysid'), *map(str, args)],
+                          capture_output=True, text=True, timeout=timeout, check=False,
+                          preexec_fn=limit)
+
+
+def assert_error_line(proc: subprocess.CompletedProcess[str], command: str, *needles: str,
+                      code: int = 1) -> str:
+    assert 'Traceback' not in proc.stderr, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert proc.returncode == code, proc.stderr
+    assert lines[0].startswith(f'galvo-sysid {command}: error: '), lines[0]
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    return lines[0]
+
+
+# ------------------------------------------------------------------ the guard of every command
+
+@pytest.mark.parametrize('error', [ValueError('bad'), MemoryError(), OverflowError('big'),
+                                   ZeroDivisionError('zero'), RecursionError('deep'),
+                                   OSError(28, 'No space left on device')])
+def test_no_command_prints_a_traceback_for_bad_input(error: BaseException,
+                                                     capsys: pytest.CaptureFixture[str],
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """What a library deep below raises on input the checks let through: one line, exit 1."""
+    from galvo_sysid.cli import info, main
+
+    def explode(args: object) -> int:
+        raise error
+
+    monkeypatch.setattr(info, 'run', explode)
+    assert main.main(['info', 'x']) == 1
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1
+    assert err.startswith('galvo-sysid info: error: ')
+    assert 'Traceback' not in err
+
+
+# ------------------------------------------------------------------ parameter files (defect 13)
+
+@pytest.mark.parametrize(('option', 'value', 'needle'), [
+    ('--watchdog-params', 'abc', 'warn_fraction must be a floating-point number, got text'),
+    ('--watchdog-params', 'null', 'warn_fraction must be a floating-point number, got null'),
+    ('--watchdog-params', '[0.5]', 'warn_fraction must be a floating-point number, got a list'),
+    ('--sysid-params', 'abc', 'window_size must be an integer, got text'),
+    ('--sysid-params', 'null', 'window_size must be an integer, got null'),
+    ('--sysid-params', '[100]', 'window_size must be an integer, got a list'),
+    ('--sysid-params', '10.7', 'window_size must be an integer, got a floating-point'),
+])
+def test_parameter_files_with_bad_values(tmp_path: Path, option: str, value: str,
+                                         needle: str) -> None:
+    name = 'warn_fraction' if option == '--watchdog-params' else 'window_size'
+    path = tmp_path / 'p.yaml'
+    path.write_text(f'/**:\n  ros__parameters:\n    {name}: {value}\n')
+    proc = run('identify', NOMINAL, option, path)
+    assert_error_line(proc, 'identify', needle, str(path))
+    assert proc.stdout == ''
