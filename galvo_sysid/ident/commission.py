@@ -55,6 +55,8 @@ if TYPE_CHECKING:
 
     from numpy.typing import ArrayLike, NDArray
 
+    from galvo_sysid.ident.refine.window import Whitener
+
 __all__ = [
     'Commissioning',
     'FrequencyResponse',
@@ -339,7 +341,7 @@ def _bands(modal: ModalModel, lo: float, hi: float) -> tuple[tuple[float, float]
 
 
 def _add_mode(chosen: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
-              current: RefinedFit, filters: list[NDArray[np.float64]], lo: float, hi: float,
+              current: RefinedFit, filters: list[Whitener | None], lo: float, hi: float,
               fit: Callable[[ModalModel, int, float], RefinedFit],
               delay: int) -> tuple[RefinedFit | None, str]:
     """The fit with one more mode at the best scanned candidate, or (None, why not)."""

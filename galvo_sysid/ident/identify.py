@@ -216,7 +216,8 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
                          target_angle=angle, moves=moves, input_delay=refined.input_delay,
                          lag_time_constant=refined.lag_time_constant,
                          fit_percent=refined.fit_percent, method='refined',
-                         resolved=refined.resolved, set_aside=set_aside)
+                         resolved=refined.resolved, set_aside=set_aside,
+                         crlb_std=_modal_only(refined.crlb_by_name()))
 
 
 def _screen(current: ArrayLike, encoder: ArrayLike, *, model: PlantModel,
@@ -237,6 +238,10 @@ def _screen(current: ArrayLike, encoder: ArrayLike, *, model: PlantModel,
     if not found.reasons:
         return cur, enc, ()
     return cur[found.keep], enc[found.keep], found.reasons
+
+
+def _modal_only(values: dict[str, float]) -> dict[str, float]:
+    return {k: v for k, v in values.items() if k != 'lag'}
 
 
 def check_model_period(model: PlantModel, sample_period: float) -> None:
@@ -358,4 +363,5 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
     return result_from_vectors(fit.model.parameters(), fit.std_by_name(), n_modes=n_modes,
                          target_angle=angle, moves=int(sum(c.shape[0] for c, _ in records)),
                          input_delay=fit.input_delay, lag_time_constant=fit.lag_time_constant,
-                         fit_percent=fit.fit_percent, method='refined', resolved=fit.resolved)
+                         fit_percent=fit.fit_percent, method='refined', resolved=fit.resolved,
+                         crlb_std=_modal_only(fit.crlb_by_name()))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from galvo_sysid.jsonsafe import json_safe
@@ -37,6 +37,9 @@ class IdentificationResult:
             widened to its band).
         set_aside: ``(move index, reason)`` of the window's moves left out by the screening
             (:func:`~galvo_sysid.ident.screen.screen_moves`); ``moves`` counts the rest.
+        crlb_std: Cramer-Rao lower bound of each parameter's standard deviation, keyed like
+            :meth:`std_by_name` (the refined method; empty otherwise): what these data allow
+            any unbiased estimator, with the noise model estimated from the moves' scatter.
     """
 
     target_angle: float
@@ -55,6 +58,7 @@ class IdentificationResult:
     method: str
     resolved: tuple[bool, ...] = ()
     set_aside: tuple[tuple[int, str], ...] = ()
+    crlb_std: dict[str, float] = field(default_factory=dict)
 
     @property
     def model(self) -> ModalModel:

@@ -1,9 +1,12 @@
 """Point-to-point move profiles: the reference and feed-forward of the 2-DOF controller.
 
-A move's acceleration is a jerk-limited bang-bang profile: a trapezoidal pulse (ramps of
-``jerk_time``) accelerating over the first half of the move and its mirror image braking
-over the second half, sampled at the centres of the DSP's sample periods, so the velocity
-returns exactly to zero. The move's duration grows with the square root of the angle (constant
+A move's acceleration is a pulse accelerating over the first half of the move and its mirror
+image braking over the second half, sampled at the centres of the DSP's sample periods, so
+the velocity returns exactly to zero. The pulse's shape (``ProfileConfig.shape``):
+``'scurve'`` (default: jerk-limited bang-bang, a trapezoidal pulse with ramps of
+``jerk_time``), ``'sine-squared'`` (a sin^2 pulse: smooth, little energy at high
+frequencies) or ``'minimum-jerk'`` (the acceleration of the quintic minimum-jerk path,
+60 tau (1 - tau) (1 - 2 tau) over the whole move). The move's duration grows with the square root of the angle (constant
 peak acceleration ``peak_current * k0``) but is at least ``min_duration``. The time defaults
 scale with the sample period (20 and 3 samples): on the paper's scanner (10 us; 1 A peak,
 0.2 ms minimum, 30 us ramps) a 0.03 deg move takes 0.2 ms, 0.3 deg 0.62 ms and 3 deg 1.9 ms,
@@ -31,7 +34,10 @@ from galvo_sysid.model.dynamics import InputDynamics, discretize
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
-__all__ = ['MoveProfile', 'ProfileConfig', 'move_profile']
+__all__ = ['PROFILE_SHAPES', 'MoveProfile', 'ProfileConfig', 'move_profile']
+
+PROFILE_SHAPES = ('scurve', 'sine-squared', 'minimum-jerk')
+"""Acceleration shapes a move may have (see the module docs)."""
 
 
 @dataclass(frozen=True)
@@ -45,12 +51,14 @@ class ProfileConfig:
         jerk_time: Acceleration ramp time [s] (at most a quarter of the move; None: 3 sample
             periods).
         max_fraction: Longest move as a fraction of the recorded samples.
+        shape: Acceleration shape, one of :data:`PROFILE_SHAPES`.
     """
 
     peak_current: float = 1.0
     min_duration: float | None = None
     jerk_time: float | None = None
     max_fraction: float = 0.6
+    shape: str = 'scurve'
 
     def __post_init__(self) -> None:
         for name in ('peak_current', 'min_duration', 'max_fraction'):
@@ -62,6 +70,9 @@ class ProfileConfig:
             raise ConfigurationError(f'jerk_time must be >= 0, got {self.jerk_time!r}')
         if self.max_fraction > 1:
             raise ConfigurationError('max_fraction must be <= 1')
+        if self.shape not in PROFILE_SHAPES:
+            raise ConfigurationError(f'shape must be one of {", ".join(PROFILE_SHAPES)}, got '
+                                     f'{self.shape!r}')
 
     def times(self, sample_period: float) -> tuple[float, float]:
         """(min_duration, jerk_time) [s] at a sample period (the defaults scale with it)."""
@@ -87,14 +98,21 @@ class MoveProfile:
     reference: NDArray[np.float64]
 
 
-def _shape(samples: int, sample_period: float, jerk_time: float) -> NDArray[np.float64]:
+def _shape(samples: int, sample_period: float, jerk_time: float,
+           kind: str = 'scurve') -> NDArray[np.float64]:
     """Unit-peak acceleration at the sample centres (antisymmetric in time)."""
     total = samples * sample_period
     half = total / 2
     ramp = min(jerk_time, half / 2)
     t = (np.arange(samples) + 0.5) * sample_period
     tt = np.where(t < half, t, t - half)
-    if ramp > 0:
+    if kind == 'minimum-jerk':
+        tau = t / total
+        acc = tau * (1 - tau) * (1 - 2 * tau)
+        return np.asarray(acc / np.max(np.abs(acc)), dtype=np.float64)
+    if kind == 'sine-squared':
+        pulse = np.sin(np.pi * tt / half) ** 2
+    elif ramp > 0:
         up = np.clip(tt / ramp, 0, 1)
         down = np.clip((half - tt) / ramp, 0, 1)
         pulse = np.minimum(up, down)
@@ -149,7 +167,7 @@ def move_profile(angle: float, *, length: int, record_length: int, k0: float,
                   math.floor(bang_bang) - 2)
     samples += samples % 2
     while True:
-        shape = _shape(samples, sample_period, jerk_time)
+        shape = _shape(samples, sample_period, jerk_time, cfg.shape)
         unit_distance = sample_period**2 * float(
             np.sum(shape * (samples - np.arange(samples) - 0.5)))
         if abs(angle) / unit_distance <= peak_acc * (1 + 1e-12):

@@ -19,7 +19,7 @@ from galvo_sysid.sim.simulator import simulate_window
 FIELDS = ('target_angle', 'moves', 'input_delay', 'lag_time_constant', 'k0', 'residues',
           'natural_frequencies', 'damping_ratios', 'k0_std', 'residues_std',
           'natural_frequencies_std', 'damping_ratios_std', 'fit_percent', 'method',
-          'resolved', 'set_aside')
+          'resolved', 'set_aside', 'crlb_std')
 
 
 @pytest.fixture(scope='module')
@@ -132,7 +132,7 @@ def test_joint_fit_resolves_the_weak_mode() -> None:
     quick = identify_joint(windows, sample_period=TAU, initial=pooled,
                            keep_initial_damping=True)
     for name, value in quick.model.parameters().items():
-        assert abs(value - joint.model.parameters()[name]) < 0.1 * std[name], name
+        assert abs(value - joint.model.parameters()[name]) < 0.2 * std[name], name
     assert quick.std_by_name()['k3'] == pytest.approx(std['k3'], rel=0.05)
 
 

@@ -12,9 +12,13 @@ resolves a mode no single window does. Both run the same steps (the tuning is
    the starting model's values; the fit then starts every mode at that damping and lets the
    optimiser reduce it (a continuation that avoids the ripples). The starting model itself
    and ``extra_starts`` are tried too; the lowest cost wins.
-2. **Two stages.** Stage 1 is ordinary least squares on the filtered data; stage 2
-   prewhitens data and model with an AR model of each window's per-move noise (generalised
-   least squares) and weighs each window by its noise.
+2. **Two stages.** Stage 1 is ordinary least squares on the filtered data; stage 2 is
+   generalised least squares: data and model are whitened with each window's noise model
+   (:class:`~galvo_sysid.ident.refine.window.Whitener`: the exact prediction-error map of
+   the stationary noise whose autocovariance the moves' scatter gives, without what each
+   move's own initial conditions explain), and each window is weighed by its noise. With the
+   right noise model this is the maximum-likelihood fit, and its ``A^-1`` the Cramer-Rao
+   bound.
 3. **Profiles** (:mod:`~galvo_sysid.ident.refine.profile`): a weakly excited mode is scanned
    over its band: a better basin is polished, its std widened to the plausible region.
 4. **Checks.** A resolved mode ending at its band edge, or a residual between the band edges
@@ -46,7 +50,12 @@ from galvo_sysid.ident.refine.joint import JointProblem, covariance
 from galvo_sysid.ident.refine.options import MAX_DAMPING, MIN_DAMPING, RefineOptions
 from galvo_sysid.ident.refine.profile import ModeProfile, profile_modes, widen_to_profiles
 from galvo_sysid.ident.refine.result import RefinedFit
-from galvo_sysid.ident.refine.window import WindowProblem, whitening_filter, window_records
+from galvo_sysid.ident.refine.window import (
+    Whitener,
+    WindowProblem,
+    noise_whitener,
+    window_records,
+)
 from galvo_sysid.model.dynamics import InputDynamics, check_sample_period, split_delay
 from galvo_sysid.model.modal import ModalModel
 
@@ -105,7 +114,7 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
 def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float,
                  initial: ModalModel, dynamics: InputDynamics = _DEFAULT_DYNAMICS,
                  estimate_lag: bool = True, bands: Sequence[tuple[float, float]] | None = None,
-                 noise_filters: Sequence[NDArray[np.float64]] | None = None,
+                 noise_filters: Sequence[Whitener | None] | None = None,
                  options: RefineOptions = _JOINT_OPTIONS) -> RefinedFit:
     """Fit one modal model to several windows of the same plant at once (the pooled estimate).
 
@@ -147,7 +156,7 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
 def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float,
          initial: ModalModel, dynamics: InputDynamics, estimate_lag: bool,
          bands: Sequence[tuple[float, float]] | None, extra_starts: Sequence[ModalModel],
-         options: RefineOptions, noise_filters: Sequence[NDArray[np.float64]] | None,
+         options: RefineOptions, noise_filters: Sequence[Whitener | None] | None,
          min_moves: int) -> RefinedFit:
     """The refined fit of one or several windows (see the module docs)."""
     t = check_sample_period(sample_period)
@@ -167,7 +176,7 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
         if len(noise_filters) != len(problems):
             raise ConfigurationError('one noise filter per window')
         for prob, filt in zip(problems, noise_filters, strict=True):
-            prob.set_whitening(np.asarray(filt, dtype=float))
+            prob.set_whitening(filt)
         whiten_order = 0  # already whitened: one stage
     noise = np.array([prob.raw_noise_rms() for prob in problems])
     scale = max(float(np.sqrt(np.mean(prob.yf_raw**2))) for prob in problems) or 1.0
@@ -253,15 +262,21 @@ def _starts(joint: JointProblem, initial: ModalModel, x_init: NDArray[np.float64
 
 
 def _prewhiten(joint: JointProblem, x: NDArray[np.float64], order: int) -> None:
-    """Stage 2: each window's AR noise filter from its per-move deviations at x, weights."""
+    """Stage 2: each window's noise whitener from its moves' noise at x, and its weight.
+
+    The noise is :meth:`WindowProblem.noise` (the moves' deviations without their own
+    initial conditions); its variance is scaled up for the dimensions the projection took.
+    """
     omega, zeta, lag = joint.unpack(x)
     weights = []
     for prob, coef in zip(joint.problems, joint.coefficients(x), strict=True):
-        dev = prob.deviations(omega, zeta, lag, coef)
-        prob.set_whitening(whitening_filter(dev, order,
-                                            float(np.sqrt(np.mean(prob.yf_raw**2)))))
+        dev = prob.noise(omega, zeta, lag, coef)
+        scale = float(np.sqrt(np.mean(prob.yf_raw**2)))
+        prob.set_whitening(noise_whitener(dev, order, scale))
         wdev = prob.apply_whitening(dev, axis=1)
-        weights.append(1.0 / max(float(np.sqrt(np.mean(wdev**2) / (prob.moves - 1))),
+        rows = dev.shape[1]
+        dof = rows / max(rows - (prob.n_linear - 1 - prob.n_modes), 1)
+        weights.append(1.0 / max(float(np.sqrt(dof * np.mean(wdev**2) / (prob.moves - 1))),
                                  1e-300))
     joint.set_weights(weights)
 
@@ -297,7 +312,7 @@ def _result(joint: JointProblem, x: NDArray[np.float64],
                        natural_frequencies=tuple(float(w) for w in omega),
                        damping_ratios=tuple(float(z) for z in zeta))
     names = (*model.parameters(), *(('lag',) if joint.estimate_lag else ()))
-    cov, method = covariance(joint, x, coefs)
+    cov, method, crlb = covariance(joint, x, coefs)
     widen_to_profiles(cov, profiles, [*shared, *omega, *zeta], n)
     res2 = den2 = 0.0
     ratios: dict[tuple[float, float], float] = {}
@@ -340,7 +355,8 @@ def _result(joint: JointProblem, x: NDArray[np.float64],
         cost=res2, n_evaluations=joint.n_eval, starts=starts,
         unresolved_modes=tuple(i + 1 for i in unresolved),
         residual_to_noise=tuple(sorted(ratios.items())),
-        chi2=joint.cost(x), rows=int(sum(prob.yf.size for prob in joint.problems)))
+        chi2=joint.cost(x), rows=int(sum(prob.yf.size for prob in joint.problems)),
+        crlb_covariance=crlb)
 
 
 def _start_vector(joint: JointProblem, model: ModalModel, lower: NDArray[np.float64],

@@ -170,11 +170,19 @@ class JointProblem:
 
 
 def covariance(joint: JointProblem, x: NDArray[np.float64],
-               coefs: Sequence[NDArray[np.float64]]) -> tuple[NDArray[np.float64], str]:
+               coefs: Sequence[NDArray[np.float64]]) -> tuple[NDArray[np.float64], str,
+                                                              NDArray[np.float64]]:
     """Covariance of [k0, k_i, omega_i, zeta_i, (lag)] and how it was made (see module docs).
 
+    Also the Cramer-Rao bound of the same parameters, ``A^-1``: the inverse Fisher matrix of
+    the window averages with the noise model the fit prewhitens with (each window's AR
+    filter and weight from its moves' scatter), every nuisance parameter (free responses,
+    offset, lag state) partialled out (the Schur complement). It is what an efficient
+    estimator's covariance tends to when the noise model is right; the sandwich is this
+    estimator's own covariance, right also when the noise model is not.
+
     Returns:
-        ``(covariance, 'sandwich' | 'white')``.
+        ``(covariance, 'sandwich' | 'white', Cramer-Rao bound)``.
 
     Raises:
         IdentificationError: The Jacobian is singular.
@@ -220,6 +228,8 @@ def covariance(joint: JointProblem, x: NDArray[np.float64],
         raise IdentificationError(f'singular Jacobian at the optimum: {exc}') from exc
     if white:
         dof = max(rows - a_mat.shape[0] - sum(p.n_linear - 1 - n for p in joint.problems), 1)
-        return np.asarray(a_inv * res2 / dof, dtype=np.float64), 'white'
+        cov = np.asarray(a_inv * res2 / dof, dtype=np.float64)
+        return cov, 'white', cov.copy()
     assert b_mat is not None
-    return np.asarray(a_inv @ b_mat @ a_inv, dtype=np.float64), 'sandwich'
+    return (np.asarray(a_inv @ b_mat @ a_inv, dtype=np.float64), 'sandwich',
+            np.asarray(a_inv, dtype=np.float64))

@@ -38,8 +38,9 @@ DEFAULT_LAG_BOUNDS = (0.0, 3.0)
 DEFAULT_SCAN_POINTS = 24
 """Frequencies per band scanned for the first starting point."""
 
-DEFAULT_WHITEN_ORDER = 16
-"""Order of the AR model of the per-move noise used to prewhiten the second stage."""
+DEFAULT_WHITEN_ORDER = 64
+"""Lags of the per-move noise's autocovariance the second stage's whitening uses (the order of
+its prediction-error filter; the first rows of a record are whitened exactly)."""
 
 DEFAULT_ADEQUACY_LIMIT = 20.0
 """Residual-to-noise energy ratio (per interval between band edges) above which the model is
@@ -66,8 +67,8 @@ class RefineOptions:
             model only).
         resolve_z: A mode whose |k_i| is below ``resolve_z`` times its std counts as not
             resolved; such a mode may end at a band edge without an error.
-        whiten_order: Order of the AR noise model of the second, prewhitened stage
-            (generalised least squares; 0: ordinary least squares only). Needs 3 moves.
+        whiten_order: Lags of the noise model of the second, prewhitened stage (generalised
+            least squares; 0: ordinary least squares only). Needs 3 moves.
         adequacy_limit: Largest accepted ratio of the averaged residual's energy to the
             noise's (from the moves' scatter) in any interval between band edges; above it
             the model lacks dynamics the data hold (0: no check). Needs 3 moves.

@@ -13,9 +13,10 @@ import numpy as np
 from galvo_sysid.ident.refine.options import DEFAULT_WHITEN_ORDER
 from galvo_sysid.ident.refine.regressors import FIRST_ROW, second_difference
 from galvo_sysid.ident.refine.window import (
+    Whitener,
     WindowProblem,
+    noise_whitener,
     validate,
-    whitening_filter,
     window_records,
 )
 from galvo_sysid.model.dynamics import split_delay
@@ -31,23 +32,24 @@ __all__ = ['added_mode_gains', 'window_noise_filters']
 
 
 def window_noise_filters(windows: Sequence[tuple[ArrayLike, ArrayLike]], *,
-                         order: int = DEFAULT_WHITEN_ORDER) -> list[NDArray[np.float64]]:
-    """A prewhitening filter per window from its moves' scatter alone (no model needed).
+                         order: int = DEFAULT_WHITEN_ORDER) -> list[Whitener | None]:
+    """A prewhitening map per window from its moves' scatter alone (no model needed).
 
-    The AR model of the (1 - q^-1)^2-filtered encoder deviations from the window's mean: the
-    noise the averaged window carries, up to the small part the input deviations explain.
+    The :class:`~galvo_sysid.ident.refine.window.Whitener` of the (1 - q^-1)^2-filtered
+    encoder deviations from the window's mean: the noise the averaged window carries, up to
+    the small part the input deviations explain.
     """
     out = []
     for current, encoder in windows:
         _, enc = validate(current, encoder)
         dev = second_difference(enc - enc.mean(axis=0))[:, FIRST_ROW:]
-        out.append(whitening_filter(dev, order, float(np.sqrt(np.mean(
+        out.append(noise_whitener(dev, order, float(np.sqrt(np.mean(
             second_difference(enc.mean(axis=0)) ** 2)))))
     return out
 
 
 def added_mode_gains(windows: Sequence[tuple[ArrayLike, ArrayLike]], fit: RefinedFit, *,
-                     noise_filters: Sequence[NDArray[np.float64]],
+                     noise_filters: Sequence[Whitener | None],
                      candidates: tuple[NDArray[np.float64], NDArray[np.float64]]) -> (
                          NDArray[np.float64]):
     """Drop of a joint fit's ``chi2`` if one more mode were added at each candidate.
@@ -74,7 +76,7 @@ def added_mode_gains(windows: Sequence[tuple[ArrayLike, ArrayLike]], fit: Refine
     for (cur, enc), filt in zip(window_records(windows, 1), noise_filters, strict=True):
         prob = WindowProblem(cur, enc, sample_period=t, delay=delay, fraction=frac,
                              n_modes=m.n_modes)
-        prob.set_whitening(np.asarray(filt, dtype=float))
+        prob.set_whitening(filt)
         weight = 1.0 / max(prob.raw_noise_rms(), 1e-300)
         total += weight * weight * prob.scan_new(omega, zeta, fit.lag_time_constant, w_c, z_c)
     return total

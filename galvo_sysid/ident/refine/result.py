@@ -58,6 +58,9 @@ class RefinedFit:
         chi2: The sum of squared residuals, prewhitened and weighted by each window's noise
             (about ``rows`` for an adequate model).
         rows: Residual rows over all windows.
+        crlb_covariance: Cramer-Rao bound of the same parameters as ``covariance`` (see
+            :func:`~galvo_sysid.ident.refine.joint.covariance`); not widened for unresolved
+            modes (it is the local bound at the estimate).
     """
 
     model: ModalModel
@@ -79,6 +82,7 @@ class RefinedFit:
     residual_to_noise: tuple[tuple[tuple[float, float], float], ...] = ()
     chi2: float = math.nan
     rows: int = 0
+    crlb_covariance: NDArray[np.float64] | None = field(default=None, repr=False)
 
     @property
     def resolved(self) -> tuple[bool, ...]:
@@ -100,8 +104,18 @@ class RefinedFit:
 
     def std_by_name(self) -> dict[str, float]:
         """Standard deviation of every parameter, by name (incl. ``'lag'`` if estimated)."""
-        sd = np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
-        return {n: float(s) for n, s in zip(self.parameter_names, sd, strict=True)}
+        return _diagonal_std(self.parameter_names, self.covariance)
+
+    def crlb_by_name(self) -> dict[str, float]:
+        """Cramer-Rao standard deviation of every parameter, by name (empty if not known)."""
+        if self.crlb_covariance is None:
+            return {}
+        return _diagonal_std(self.parameter_names, self.crlb_covariance)
+
+
+def _diagonal_std(names: tuple[str, ...], cov: NDArray[np.float64]) -> dict[str, float]:
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return {n: float(s) for n, s in zip(names, sd, strict=True)}
 
 
 def filtered_fit_percent(yf: NDArray[np.float64], residual: NDArray[np.float64]) -> float:

@@ -19,10 +19,9 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.linalg import LinAlgError, qr, solve_toeplitz
+from scipy.linalg import qr
 
 from galvo_sysid.errors import InvalidDataError
-from galvo_sysid.ident.filters import fir
 from galvo_sysid.ident.refine.regressors import (
     FIRST_ROW,
     Regressors,
@@ -39,7 +38,8 @@ if TYPE_CHECKING:
 
     Floats: TypeAlias = Sequence[float] | NDArray[np.float64]
 
-__all__ = ['MIN_SAMPLES', 'WindowProblem', 'validate', 'whitening_filter', 'window_records']
+__all__ = ['MIN_SAMPLES', 'Whitener', 'WindowProblem', 'noise_whitener', 'validate',
+           'window_records']
 
 MIN_SAMPLES = 64
 """Fewest samples per record the refined fit accepts."""
@@ -95,22 +95,91 @@ def window_records(windows: Sequence[tuple[ArrayLike, ArrayLike]], min_moves: in
     return out
 
 
-def whitening_filter(dev: NDArray[np.float64], order: int,
-                     scale: float) -> NDArray[np.float64]:
-    """FIR A(q) = 1 + a_1 q^-1 + .. making the per-move noise ``dev`` white (Yule-Walker).
+def _taper(n: int) -> NDArray[np.float64]:
+    """Hann taper scaled to unit mean square: autocovariances without the leakage of a bare
+    record (its sidelobes fill a spectral valley tens of dB deep, e.g. the filtered encoder
+    noise's low frequencies, where the rigid body's information lies)."""  # noqa: D205, D209
+    w = np.hanning(n + 2)[1:-1]
+    return np.asarray(w / np.sqrt(np.mean(w * w)), dtype=np.float64)
 
-    ``scale`` is the rms of the filtered output: noise below 1e-10 of it is not modelled.
+
+class Whitener:
+    """The noise's exact whitening map over a record, for a stationary noise of known
+    autocovariance: row k is the prediction error of sample k from all the samples before it
+    (order k), divided by its standard deviation (the rows of L^-1 for the Cholesky factor L
+    of the Toeplitz covariance). From row ``order`` on the rows are all the order-``order``
+    prediction-error filter, applied as an FIR; the first rows are exact too, so a record's
+    start is whitened as well as its middle.
+
+    Args:
+        autocovariance: r[0..order] of the noise (r[0] > 0).
+    """  # noqa: D205
+
+    def __init__(self, autocovariance: NDArray[np.float64]) -> None:
+        r = np.asarray(autocovariance, dtype=float)
+        order = r.size - 1
+        head = np.zeros((order, order))
+        a = np.array([1.0])
+        err = float(r[0])
+        for k in range(order + 1):
+            if k:
+                acc = float(r[k] + a[1:] @ r[k - 1: 0: -1]) if k > 1 else float(r[1])
+                refl = -acc / err
+                a = np.concatenate([a, [0.0]])
+                a = a + refl * a[::-1]
+                err *= max(1.0 - refl * refl, 1e-12)
+            if k < order:
+                head[k, : k + 1] = a[::-1] / math.sqrt(err)
+        self.order = order
+        self.head = head
+        self.filter = a / math.sqrt(err)
+        self._spectra: dict[int, NDArray[np.complex128]] = {}
+
+    def apply(self, arr: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
+        """Whiten ``arr`` along ``axis`` (its rows are the record's samples from the first)."""
+        moved = np.moveaxis(np.asarray(arr, dtype=float), axis, 0)
+        n = moved.shape[0]
+        size = _fft_size(n + self.order)
+        spectrum = self._spectra.get(size)
+        if spectrum is None:
+            spectrum = self._spectra[size] = np.fft.rfft(self.filter, size)
+        shape = (-1,) + (1,) * (moved.ndim - 1)
+        out = np.fft.irfft(np.fft.rfft(moved, size, axis=0) * spectrum.reshape(shape), size,
+                           axis=0)[:n]
+        p = min(self.order, n)
+        out[:p] = np.tensordot(self.head[:p, :p], moved[:p], axes=1)
+        return np.moveaxis(out, 0, axis)
+
+
+def _fft_size(n: int) -> int:
+    """The smallest 2^a 3^b 5^c >= n (a fast FFT length)."""
+    best = 1 << (n - 1).bit_length()
+    p5 = 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            size = p35 * (1 << max(0, (-(-n // p35) - 1).bit_length()))
+            best = min(best, size)
+            p35 *= 3
+        p5 *= 5
+    return best
+
+
+def noise_whitener(dev: NDArray[np.float64], order: int, scale: float) -> Whitener | None:
+    """The :class:`Whitener` of the per-move noise ``dev`` (M, rows), or None without noise.
+
+    The autocovariance is that of the Hann-tapered records (see :func:`_taper`), averaged
+    over the moves, up to lag ``order``.
     """
     n = dev.shape[1]
-    r = np.array([np.sum(dev[:, lag:] * dev[:, : n - lag]) for lag in range(order + 1)])
-    if not r[0] > scale * scale * 1e-20 * dev.size:  # no noise to model (noise-free data)
-        return np.array([1.0])
-    r = r / r[0] * (1.0 - 1e-9 * np.arange(order + 1) / order)  # slight taper, stays PD
-    try:
-        a = solve_toeplitz(r[:-1], -r[1:])
-    except (ValueError, LinAlgError):
-        return np.array([1.0])
-    return np.concatenate([[1.0], a]) if np.all(np.isfinite(a)) else np.array([1.0])
+    order = max(1, min(order, n // 2))
+    tapered = dev * _taper(n)
+    r = np.array([np.sum(tapered[:, lag:] * tapered[:, : n - lag]) for lag in range(order + 1)])
+    if not r[0] > scale * scale * 1e-20 * dev.size:
+        return None
+    r = r / r[0]
+    r[1:] *= 1.0 - 1e-9 * np.arange(1, order + 1) / order  # stays positive definite
+    return Whitener(r)
 
 
 class WindowProblem:
@@ -144,17 +213,17 @@ class WindowProblem:
         self.set_whitening(None)
 
     # -- whitening -------------------------------------------------------------------------
-    def set_whitening(self, a: NDArray[np.float64] | None) -> None:
-        """Use the FIR prewhitening filter ``a`` (a[0] = 1) on data and columns, or none."""
+    def set_whitening(self, a: Whitener | None) -> None:
+        """Use a prewhitening map (a :class:`Whitener`) on data and columns, or none."""
         self.whiten = a
         self.yf = self.apply_whitening(self.yf_raw)
 
     def apply_whitening(self, arr: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
-        """Filter ``arr`` along the row ``axis`` (from rest: an invertible lower-triangular map,
-        so no row is lost)."""  # noqa: D205, D209
+        """Whiten ``arr`` along the row ``axis`` (an invertible lower-triangular map, so no row
+        is lost)."""  # noqa: D205, D209
         if self.whiten is None:
             return arr
-        return fir(self.whiten, arr, axis=axis)
+        return self.whiten.apply(arr, axis=axis)
 
     # -- columns ---------------------------------------------------------------------------
     def columns(self, omega: Floats, zeta: Floats, lag: float, *,
@@ -282,6 +351,23 @@ class WindowProblem:
         forced = regs.convolve(h[None, :])[0] \
             + coef[0] * (regs.rigid_double - lag * regs.rigid_single)
         return np.asarray((enc_f - forced)[:, self.first:], dtype=np.float64)
+
+    def noise(self, omega: NDArray[np.float64], zeta: NDArray[np.float64], lag: float,
+              coef: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The moves' noise: :meth:`deviations` without what each move's own nuisance explains.
+
+        A move's deviation also holds its own initial conditions (the ringing and the lag
+        state the previous move left, an offset), which the averaged window's nuisance
+        columns absorb: they are no noise of the estimate. Each move's projection onto those
+        columns is removed (unwhitened rows, (M, rows)); the noise model, the weights and the
+        Cramer-Rao bound come from what is left.
+        """
+        dev = self.deviations(omega, zeta, lag, coef)
+        nuisance = self.columns(omega, zeta, lag, whitened=False)[:, 1 + self.n_modes:]
+        scale = np.linalg.norm(nuisance, axis=0)
+        scale[scale == 0] = 1.0
+        q, _ = qr(nuisance / scale, mode='economic', check_finite=False)
+        return np.asarray(dev - (dev @ q) @ q.T, dtype=np.float64)
 
     def raw_noise_rms(self) -> float:
         """Rms of the averaged filtered noise from the moves' scatter alone (no model), whitened
