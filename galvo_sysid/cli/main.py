@@ -26,7 +26,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from galvo_sysid import limit_blas_threads
-from galvo_sysid.cli import echo, identify, info, record, replay, simulate
+from galvo_sysid.cli import bag, echo, identify, info, record, replay, simulate
 from galvo_sysid.cli.common import guarded
 
 if TYPE_CHECKING:
@@ -44,11 +44,11 @@ and the plugins' own commands); it should import nothing heavy: the numerics bel
 ``func``. Errors of bad input raised by ``func`` become one line on stderr and exit code 1
 (:func:`~galvo_sysid.cli.common.guarded`)."""
 
-COMMANDS = ('simulate', 'identify', 'info', 'record', 'replay', 'echo')
+COMMANDS = ('simulate', 'identify', 'info', 'record', 'replay', 'echo', 'bag')
 """The built-in subcommands: running one of them registers no plugin (process start counts,
 e.g. in identify's speed against real time)."""
 
-_BUILTIN = (simulate, identify, info, record, replay, echo)  # the modules of COMMANDS, in order
+_BUILTIN = (simulate, identify, info, record, replay, echo, bag)  # COMMANDS' modules, in order
 
 _MAIN_HELP = """\
 Field tools for galvano-scanner system identification (galvo_sysid).

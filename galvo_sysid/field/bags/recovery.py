@@ -403,9 +403,12 @@ class Recovered:
 
     def summary(self) -> str:
         """One line: what was kept and what was lost."""
-        what = 'recovered' if self.repaired or self.interrupted else 'reindexed'
-        text = (f'{what} {self.messages:,} messages of {self.topics} topic'
+        held = (f'{self.messages:,} messages of {self.topics} topic'
                 f'{"" if self.topics == 1 else "s"}, {self.seconds:.1f} s')
+        if not (self.repaired or self.interrupted):
+            return f'nothing to recover: {held} (metadata.yaml written from the storage file)'
+        text = f'recovered {held}'
+
         lost = []
         if self.dropped_bytes:
             lost.append(f'cut {self.dropped_bytes:,} bytes of an unfinished chunk')

@@ -264,16 +264,22 @@ class BagWriter(BagFile):
         Raises:
             BagWriteError: Writing failed: the bag is closed with what was written before.
         """
-        if not self._open or self.error is not None:
-            return
-        storage = self._writer.durable
-        if storage.due():
-            try:
-                storage.flush()
-                self._after_write()
-            except OSError as err:
-                self._fail(err)
-                raise self._raised() from None
+        if self._open and self.error is None and self._writer.durable.due():
+            self.flush()
+
+    def flush(self) -> None:
+        """Write pending messages to the file now (an mcap chunk, an sqlite3 commit).
+
+        Raises:
+            BagWriteError: Writing failed: the bag is closed with what was written before.
+        """
+        self._check_writable()
+        try:
+            self._writer.durable.flush()
+            self._after_write()
+        except OSError as err:
+            self._fail(err)
+            raise self._raised() from None
 
     @property
     def kept(self) -> int:
@@ -424,7 +430,7 @@ class BagWriter(BagFile):
                 self._lock.close()
         self._kept = kept
         gone = f'; {lost:,} messages not yet written are lost' if lost else ''
-        msg = f'cannot write bag {self.path}: {reason(err)}; {what}{gone}'
+        msg = f'cannot write bag {self.path}: {err.strerror or reason(err)}; {what}{gone}'
         self.error = BagWriteError(msg)
 
     def move_samples(self, *, stamp: float, move_id: int, target_angle: float,

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TextIO
 
-from galvo_sysid.field.bags import BagWriter
+from galvo_sysid.field.bags import BagWriteError, BagWriter
 from galvo_sysid.field.live.graph import (
     Stop,
     absolute,
@@ -36,21 +37,31 @@ class RecordSummary:
     """What :func:`record` stored.
 
     Attributes:
-        counts: Messages per topic.
+        counts: Messages received per topic.
         types: Message type per topic.
         seconds: Recording time [s].
+        kept: Messages in the bag (all received ones, unless writing failed).
+        error: Why the recording stopped early (a failed write, e.g. a full disk; the bag
+            is closed with what was written before), or None.
     """
 
     counts: dict[str, int] = field(default_factory=dict)
     types: dict[str, str] = field(default_factory=dict)
     seconds: float = 0.0
+    kept: int = 0
+    error: BagWriteError | None = None
 
 
 def record(out: str | os.PathLike[str], *, topics: Sequence[str] = GALVO_TOPICS,
            all_topics: bool = False, duration: float | None = None, storage: str = 'mcap',
-           log: TextIO = sys.stderr,
+           flush_interval: float = 1.0, log: TextIO = sys.stderr,
            ready: Callable[[], None] | None = None) -> RecordSummary:
     """Record topics of the live graph into a new bag until ``duration`` or Ctrl-C.
+
+    What survives a crash: messages reach the bag's file at least every ``flush_interval``
+    seconds; a killed recording keeps them (``galvo-sysid bag recover`` finishes the bag).
+    A failed write (a full disk) stops the recording: the bag is closed with what was
+    written before and :attr:`RecordSummary.error` says what happened.
 
     Topics are subscribed as soon as they have a publisher in the graph (also late ones),
     raw, with a QoS that matches the publishers (transient local when all offer it, so the
@@ -62,16 +73,18 @@ def record(out: str | os.PathLike[str], *, topics: Sequence[str] = GALVO_TOPICS,
         all_topics: Record every topic except :data:`HIDDEN_TOPICS` instead.
         duration: Stop after this many seconds; None records until SIGINT/SIGTERM.
         storage: ``'mcap'`` or ``'sqlite3'``.
+        flush_interval: Longest time a received message waits in memory [s].
         log: Where progress lines go.
         ready: Called once subscriptions may be made (for tests).
 
     Raises:
         BagExistsError: ``out`` exists.
+        BagWriteError: The bag cannot be created.
         ConfigurationError: A topic's type is not installed.
     """
     wanted = {absolute(t) for t in topics}
     summary = RecordSummary()
-    writer = BagWriter(out, storage=storage)
+    writer = BagWriter(out, storage=storage, flush_interval=flush_interval)
     writer.open()
     try:
         with Stop() as stop, ros_node('galvo_sysid_recorder') as node:
@@ -82,8 +95,11 @@ def record(out: str | os.PathLike[str], *, topics: Sequence[str] = GALVO_TOPICS,
 
             def make_callback(topic: str) -> Callable[[bytes], None]:
                 def callback(data: bytes) -> None:
-                    writer.write_raw(topic, clock.now().nanoseconds, data)
+                    if writer.error is not None:
+                        return
                     summary.counts[topic] += 1
+                    with contextlib.suppress(BagWriteError):  # kept in writer.error: stop
+                        writer.write_raw(topic, clock.now().nanoseconds, data)
                 return callback
 
             def discover() -> None:
@@ -101,8 +117,11 @@ def record(out: str | os.PathLike[str], *, topics: Sequence[str] = GALVO_TOPICS,
                     if offered is None:  # known from a subscriber only: wait for a publisher
                         continue
                     reliable, transient = offered
-                    writer.add_topic(topic, msgtype, reliable=reliable,
-                                     transient_local=transient)
+                    try:
+                        writer.add_topic(topic, msgtype, reliable=reliable,
+                                         transient_local=transient)
+                    except BagWriteError:  # kept in writer.error: stop
+                        return
                     _check_hash(node, topic, msgtype, writer, log)
                     qos = subscription_qos(reliable=reliable, transient_local=transient,
                                             depth=10000)
@@ -116,7 +135,7 @@ def record(out: str | os.PathLike[str], *, topics: Sequence[str] = GALVO_TOPICS,
             next_discovery = start
             if ready is not None:
                 ready()
-            while not stop.is_set():
+            while not stop.is_set() and writer.error is None:
                 now = time.monotonic()
                 if duration is not None and now - start >= duration:
                     break
@@ -124,9 +143,14 @@ def record(out: str | os.PathLike[str], *, topics: Sequence[str] = GALVO_TOPICS,
                     discover()
                     next_discovery = now + 0.25
                 rclpy.spin_once(node, timeout_sec=0.05)
+                with contextlib.suppress(BagWriteError):  # kept in writer.error: stop
+                    writer.tick()
             summary.seconds = time.monotonic() - start
     finally:
-        writer.close()
+        with contextlib.suppress(BagWriteError):  # kept in writer.error
+            writer.close()
+        summary.kept = writer.kept
+        summary.error = writer.error
     for topic in sorted(wanted - set(summary.types)):
         say(log, f'record: {topic} never appeared in the graph')
     summary.types = {k: v for k, v in summary.types.items() if v}
