@@ -262,21 +262,20 @@ def _starts(joint: JointProblem, initial: ModalModel, x_init: NDArray[np.float64
 
 
 def _prewhiten(joint: JointProblem, x: NDArray[np.float64], order: int) -> None:
-    """Stage 2: each window's noise whitener from its moves' noise at x, and its weight.
+    """Stage 2: each window's noise whitener from its moves' deviations at x, and its weight.
 
-    The noise is :meth:`WindowProblem.noise` (the moves' deviations without their own
-    initial conditions); its variance is scaled up for the dimensions the projection took.
+    The deviations are each move's residual from the window's mean, whole: the noise is
+    stationary, and each move's own initial conditions are part of it (the nuisance columns
+    are projected out after whitening, as generalised least squares with nuisance does).
     """
     omega, zeta, lag = joint.unpack(x)
     weights = []
     for prob, coef in zip(joint.problems, joint.coefficients(x), strict=True):
-        dev = prob.noise(omega, zeta, lag, coef)
-        scale = float(np.sqrt(np.mean(prob.yf_raw**2)))
-        prob.set_whitening(noise_whitener(dev, order, scale))
+        dev = prob.deviations(omega, zeta, lag, coef)
+        prob.set_whitening(noise_whitener(dev, order,
+                                          float(np.sqrt(np.mean(prob.yf_raw**2)))))
         wdev = prob.apply_whitening(dev, axis=1)
-        rows = dev.shape[1]
-        dof = rows / max(rows - (prob.n_linear - 1 - prob.n_modes), 1)
-        weights.append(1.0 / max(float(np.sqrt(dof * np.mean(wdev**2) / (prob.moves - 1))),
+        weights.append(1.0 / max(float(np.sqrt(np.mean(wdev**2) / (prob.moves - 1))),
                                  1e-300))
     joint.set_weights(weights)
 

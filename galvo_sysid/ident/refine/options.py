@@ -38,7 +38,7 @@ DEFAULT_LAG_BOUNDS = (0.0, 3.0)
 DEFAULT_SCAN_POINTS = 24
 """Frequencies per band scanned for the first starting point."""
 
-DEFAULT_WHITEN_ORDER = 64
+DEFAULT_WHITEN_ORDER = 128
 """Lags of the per-move noise's autocovariance the second stage's whitening uses (the order of
 its prediction-error filter; the first rows of a record are whitened exactly)."""
 

@@ -113,9 +113,12 @@ class Whitener:
 
     Args:
         autocovariance: r[0..order] of the noise (r[0] > 0).
+        inner: A whitener applied first (this one whitens what it leaves).
     """  # noqa: D205
 
-    def __init__(self, autocovariance: NDArray[np.float64]) -> None:
+    def __init__(self, autocovariance: NDArray[np.float64], *,
+                 inner: Whitener | None = None) -> None:
+        self.inner = inner
         r = np.asarray(autocovariance, dtype=float)
         order = r.size - 1
         head = np.zeros((order, order))
@@ -137,6 +140,8 @@ class Whitener:
 
     def apply(self, arr: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
         """Whiten ``arr`` along ``axis`` (its rows are the record's samples from the first)."""
+        if self.inner is not None:
+            arr = self.inner.apply(arr, axis=axis)
         moved = np.moveaxis(np.asarray(arr, dtype=float), axis, 0)
         n = moved.shape[0]
         size = _fft_size(n + self.order)
@@ -165,21 +170,38 @@ def _fft_size(n: int) -> int:
     return best
 
 
+def _autocovariance(dev: NDArray[np.float64], order: int) -> NDArray[np.float64]:
+    n = dev.shape[1]
+    return np.array([np.sum(dev[:, lag:] * dev[:, : n - lag]) for lag in range(order + 1)])
+
+
+def _normalised(r: NDArray[np.float64]) -> NDArray[np.float64]:
+    r = r / r[0]
+    r[1:] *= 1.0 - 1e-9 * np.arange(1, r.size) / (r.size - 1)  # stays positive definite
+    return r
+
+
 def noise_whitener(dev: NDArray[np.float64], order: int, scale: float) -> Whitener | None:
     """The :class:`Whitener` of the per-move noise ``dev`` (M, rows), or None without noise.
 
-    The autocovariance is that of the Hann-tapered records (see :func:`_taper`), averaged
-    over the moves, up to lag ``order``.
+    Two passes (prewhitening, as in spectral estimation): the first whitener comes from the
+    autocovariance of the Hann-tapered records (the taper keeps the dynamic range: see
+    :func:`_taper`), which flattens the spectrum but blurs its sharp peaks (the resonances
+    the current noise rings); the second from the bare autocovariance of what the first
+    leaves, nearly white, so neither leakage nor the taper's blur matters. Both up to lag
+    ``order``, averaged over the moves; the map is the second after the first.
     """
     n = dev.shape[1]
     order = max(1, min(order, n // 2))
-    tapered = dev * _taper(n)
-    r = np.array([np.sum(tapered[:, lag:] * tapered[:, : n - lag]) for lag in range(order + 1)])
+    r = _autocovariance(dev * _taper(n), order)
     if not r[0] > scale * scale * 1e-20 * dev.size:
         return None
-    r = r / r[0]
-    r[1:] *= 1.0 - 1e-9 * np.arange(1, order + 1) / order  # stays positive definite
-    return Whitener(r)
+    first = Whitener(_normalised(r))
+    rest = first.apply(dev, axis=1)
+    r2 = _autocovariance(rest, order)
+    if not r2[0] > 0:
+        return first
+    return Whitener(_normalised(r2), inner=first)
 
 
 class WindowProblem:
