@@ -104,28 +104,35 @@ def _taper(n: int) -> NDArray[np.float64]:
 
 
 class Whitener:
-    """The noise's exact whitening map over a record, for a stationary noise of known
-    autocovariance: row k is the prediction error of sample k from all the samples before it
-    (order k), divided by its standard deviation (the rows of L^-1 for the Cholesky factor L
-    of the Toeplitz covariance). From row ``order`` on the rows are all the order-``order``
-    prediction-error filter, applied as an FIR; the first rows are exact too, so a record's
-    start is whitened as well as its middle.
+    """A causal whitening map over a record: an exact head of rows, then an FIR filter.
+
+    Made from a stationary noise's autocovariance (:meth:`from_autocovariance`), row k is
+    the prediction error of sample k from all the samples before it (order k), divided by
+    its standard deviation: the rows of L^-1 for the Cholesky factor L of the Toeplitz
+    covariance. From row ``order`` on the rows are all the order-``order`` prediction-error
+    filter, applied as an FIR (by FFT); the first rows are exact too, so a record's start
+    is whitened as well as its middle. Two whiteners compose (:meth:`then`) into one.
 
     Args:
-        autocovariance: r[0..order] of the noise (r[0] > 0).
-        inner: A whitener applied first (this one whitens what it leaves).
-    """  # noqa: D205
+        head: (h, h) lower-triangular rows of the first h samples.
+        taps: FIR filter of the rows from h on (length <= h + 1).
+    """
 
-    def __init__(self, autocovariance: NDArray[np.float64], *,
-                 inner: Whitener | None = None) -> None:
-        self.inner = inner
+    def __init__(self, head: NDArray[np.float64], taps: NDArray[np.float64]) -> None:
+        self.head = np.asarray(head, dtype=float)
+        self.filter = np.asarray(taps, dtype=float)
+        self._spectra: dict[int, NDArray[np.complex128]] = {}
+
+    @classmethod
+    def from_autocovariance(cls, autocovariance: NDArray[np.float64]) -> Whitener:
+        """The exact whitener of a stationary noise with autocovariance r[0..order]."""
         r = np.asarray(autocovariance, dtype=float)
         order = r.size - 1
         head = np.zeros((order, order))
         a = np.array([1.0])
         err = float(r[0])
         for k in range(order + 1):
-            if k:
+            if k:  # Levinson-Durbin: the order-k predictor from the order-(k - 1) one
                 acc = float(r[k] + a[1:] @ r[k - 1: 0: -1]) if k > 1 else float(r[1])
                 refl = -acc / err
                 a = np.concatenate([a, [0.0]])
@@ -133,25 +140,26 @@ class Whitener:
                 err *= max(1.0 - refl * refl, 1e-12)
             if k < order:
                 head[k, : k + 1] = a[::-1] / math.sqrt(err)
-        self.order = order
-        self.head = head
-        self.filter = a / math.sqrt(err)
-        self._spectra: dict[int, NDArray[np.complex128]] = {}
+        return cls(head, a / math.sqrt(err))
+
+    def then(self, outer: Whitener) -> Whitener:
+        """The map ``outer`` after this one, as one whitener."""
+        size = self.head.shape[0] + outer.head.shape[0]
+        head = outer.apply(self.apply(np.eye(size)))
+        return Whitener(np.tril(head), np.convolve(outer.filter, self.filter))
 
     def apply(self, arr: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
         """Whiten ``arr`` along ``axis`` (its rows are the record's samples from the first)."""
-        if self.inner is not None:
-            arr = self.inner.apply(arr, axis=axis)
         moved = np.moveaxis(np.asarray(arr, dtype=float), axis, 0)
         n = moved.shape[0]
-        size = _fft_size(n + self.order)
+        size = _fft_size(n + self.filter.size - 1)
         spectrum = self._spectra.get(size)
         if spectrum is None:
             spectrum = self._spectra[size] = np.fft.rfft(self.filter, size)
         shape = (-1,) + (1,) * (moved.ndim - 1)
         out = np.fft.irfft(np.fft.rfft(moved, size, axis=0) * spectrum.reshape(shape), size,
                            axis=0)[:n]
-        p = min(self.order, n)
+        p = min(self.head.shape[0], n)
         out[:p] = np.tensordot(self.head[:p, :p], moved[:p], axes=1)
         return np.moveaxis(out, 0, axis)
 
@@ -196,12 +204,12 @@ def noise_whitener(dev: NDArray[np.float64], order: int, scale: float) -> Whiten
     r = _autocovariance(dev * _taper(n), order)
     if not r[0] > scale * scale * 1e-20 * dev.size:
         return None
-    first = Whitener(_normalised(r))
+    first = Whitener.from_autocovariance(_normalised(r))
     rest = first.apply(dev, axis=1)
     r2 = _autocovariance(rest, order)
     if not r2[0] > 0:
         return first
-    return Whitener(_normalised(r2), inner=first)
+    return first.then(Whitener.from_autocovariance(_normalised(r2)))
 
 
 class WindowProblem:
