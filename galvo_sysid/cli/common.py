@@ -28,6 +28,7 @@ __all__ = [
     'HelpFormatter',
     'Progress',
     'add_subcommand',
+    'bounded_int',
     'finite_float',
     'guarded',
     'nonnegative_int',
@@ -107,6 +108,15 @@ def positive(kind: type[int] | type[float]) -> Callable[[str], Any]:
     def parse(text: str) -> float:
         return _number(text, kind, 'a number', '> 0', lambda value: value > 0)
     parse.__name__ = kind.__name__
+    return parse
+
+
+def bounded_int(low: int, high: int) -> Callable[[str], int]:
+    """An argument type: a whole number within ``low .. high``."""
+    def parse(text: str) -> int:
+        return int(_number(text, int, 'a whole number', f'within {low}..{high}',
+                           lambda value: low <= value <= high))
+    parse.__name__ = 'int'
     return parse
 
 

@@ -6,12 +6,23 @@ import argparse
 import sys
 from typing import TYPE_CHECKING, Any
 
-from galvo_sysid.cli.common import add_subcommand, nonnegative_int, parse_angle, positive
+from galvo_sysid.cli.common import (
+    add_subcommand,
+    bounded_int,
+    nonnegative_int,
+    parse_angle,
+    positive,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ['add_parser', 'angles', 'run']
+__all__ = ['LIMITS', 'add_parser', 'angles', 'run']
+
+LIMITS = {'moves_per_angle': (2, 1_000_000), 'seed': (0, 2**31 - 1)}
+"""The ranges of --moves-per-angle and --seed: those of the galvo_driver's parameters
+(galvo_sysid.field.simulate.schedule_limits(), written out so that building the parser loads no
+numpy; a test checks the two agree)."""
 
 _DESCRIPTION = (
     "Run the closed-loop simulator (the plant of a model file, by default the paper's\n"
@@ -40,12 +51,17 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p = add_subcommand(
         subparsers, 'simulate', help='write a bag from the simulated scanner (fast, no ROS)',
         description=_DESCRIPTION, epilog=_EPILOG)
-    p.add_argument('--out', required=True, metavar='BAG', help='bag directory to create')
+    p.add_argument('--out', required=True, metavar='BAG',
+                   help='bag directory to create (it appears when complete: a failed run '
+                        'leaves nothing)')
     p.add_argument('--angles', nargs='+', default=['1psi'], metavar='ANGLE',
                    help="target angles [deg]; '2psi' = 2 x 0.3 deg; 'paper' = the paper's 19")
-    p.add_argument('--moves-per-angle', type=positive(int), default=200, metavar='N',
-                   help='moves per angle (forward and back alternate)')
-    p.add_argument('--seed', type=int, default=0, help='noise seed (same seed, same bag)')
+    p.add_argument('--moves-per-angle', type=bounded_int(*LIMITS['moves_per_angle']),
+                   default=200, metavar='N',
+                   help='moves per angle, even (forward and back alternate; at most '
+                        f"{LIMITS['moves_per_angle'][1]:,})")
+    p.add_argument('--seed', type=bounded_int(*LIMITS['seed']), default=0,
+                   help='noise seed (same seed, same bag)')
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                    help='rosbag2 storage format')
     p.add_argument('--model', metavar='FILE', default=None,

@@ -15,12 +15,20 @@ Plant changes and effects are given as short texts (the command line's syntax):
 - effect ``NAME:KEY=VALUE[,KEY=VALUE...]``: a physical effect of
   :data:`~galvo_sysid.model.effects.EFFECT_NAMES`, e.g. ``coulomb_friction:friction_current=0.05``,
   ``unmodeled_resonance:natural_frequency=3e4,damping_ratio=0.01,residue=1e5``.
+
+The moves are written as they are simulated, :data:`CHUNK` moves at a time (memory does not
+grow with the schedule), into a bag that appears under its name only when complete
+(:func:`~galvo_sysid.field.bags.atomic.atomic_bag`): a failed or interrupted run leaves
+nothing that blocks the next one. The schedule is bounded like the ``galvo_driver``'s
+(``moves_per_angle`` and ``seed`` of :data:`~galvo_sysid.monitor.parameters.DRIVER_PARAMETERS`),
+and a bag that would not fit on its disk is refused before the first move.
 """
 
 from __future__ import annotations
 
 import math
 import re
+import shutil
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -28,23 +36,43 @@ from typing import TYPE_CHECKING
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.field.bags import CURRENT_TOPIC, ENCODER_TOPIC, BagWriter, stamp_to_ns
+from galvo_sysid.field.bags.atomic import atomic_bag
 from galvo_sysid.interfaces.topics import MOVE_SAMPLES
 from galvo_sysid.model.files import model_label
 
 if TYPE_CHECKING:
     import os
-    from collections.abc import Iterable, Sequence
+    from collections.abc import Iterable, Iterator, Sequence
 
     from galvo_sysid.model.changes import Drift, StepChange
     from galvo_sysid.sim.config import Move, SimulatorConfig
+    from galvo_sysid.sim.simulator import GalvoSimulator
 
 __all__ = [
+    'CHUNK',
     'SimulationSummary',
     'parse_drift',
     'parse_step',
+    'schedule_limits',
     'simulate_bag',
     'write_moves',
 ]
+
+CHUNK = 4096
+"""Moves simulated per call of the simulator (a multiple of its batch of 64), then written."""
+
+_COMPRESSED = 0.5
+"""The smallest share of the raw sample bytes a bag takes on disk (zstd on noisy doubles
+keeps about 60 %): the estimate that decides whether a bag fits."""
+
+
+def schedule_limits() -> dict[str, tuple[int, int]]:
+    """The ranges of ``moves_per_angle`` and ``seed``: the ``galvo_driver``'s (one source)."""
+    from galvo_sysid.monitor.parameters import DRIVER_PARAMETERS
+
+    return {s.name: (int(s.low or 0), int(s.high or 0)) for s in DRIVER_PARAMETERS
+            if s.name in {'moves_per_angle', 'seed'}}
+
 
 _NUMBER = r'[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?'
 _DRIFT = re.compile(rf'^\s*(\w+)\s*=\s*({_NUMBER})\s*/\s*(s|second|move)\s*'
@@ -161,8 +189,9 @@ def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
         out: Bag directory to create.
         angles: Target angles [deg]; each gets ``moves_per_angle`` moves alternating
             +angle and -angle.
-        moves_per_angle: Moves per angle (even).
-        seed: Noise seed.
+        moves_per_angle: Moves per angle (even; the range of the ``galvo_driver``'s
+            ``moves_per_angle``, :func:`schedule_limits`).
+        seed: Noise seed (the range of the ``galvo_driver``'s ``seed``).
         storage: ``'mcap'`` or ``'sqlite3'``.
         drift: Drifts, ``PARAM=RATE/UNIT[@START]`` (see the module docs).
         steps: Step changes, ``PARAM=FACTOR@WHEN``.
@@ -174,8 +203,10 @@ def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
             paper model).
 
     Raises:
-        ConfigurationError: Bad schedule, change or effect.
+        ConfigurationError: Bad schedule, seed, change or effect; the bag would not fit on
+            its disk.
         BagExistsError: ``out`` exists.
+        OSError: Writing failed (e.g. the disk is full); nothing is left under ``out``.
     """
     from galvo_sysid.model.effects import parse_effect
     from galvo_sysid.sim.config import SimulatorConfig
@@ -184,8 +215,16 @@ def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
     if not angles:
         msg = 'no angles given'
         raise ConfigurationError(msg)
-    if moves_per_angle < 2 or moves_per_angle % 2:  # forward and back
-        msg = f'moves-per-angle must be a positive even number, got {moves_per_angle}'
+    limits = schedule_limits()
+    low, high = limits['moves_per_angle']
+    if isinstance(moves_per_angle, bool) or not isinstance(moves_per_angle, int) or not (
+            low <= moves_per_angle <= high) or moves_per_angle % 2:  # forward and back
+        msg = (f'moves-per-angle must be an even number within {low}..{high}, got '
+               f'{moves_per_angle!r}')
+        raise ConfigurationError(msg)
+    low, high = limits['seed']
+    if isinstance(seed, bool) or not isinstance(seed, int) or not low <= seed <= high:
+        msg = f'seed must be a whole number within {low}..{high}, got {seed!r}'
         raise ConfigurationError(msg)
     base = config or SimulatorConfig()
     plant = base.plant.with_effects([parse_effect(text) for text in effects])
@@ -196,12 +235,12 @@ def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
     sim = GalvoSimulator(config=cfg, seed=seed)
     sim.check_angles(angles)
     path = Path(out)
-    with BagWriter(path, storage=storage) as bag:
+    _check_space(path, moves=len(angles) * moves_per_angle,
+                 samples=sim.config.record)
+    with atomic_bag(path) as partial, BagWriter(partial, storage=storage) as bag:
         bag.add_topic(CURRENT_TOPIC, MOVE_SAMPLES)
         bag.add_topic(ENCODER_TOPIC, MOVE_SAMPLES)
-        count = write_moves(bag, sim.moves(angles=list(angles),
-                                           moves_per_angle=moves_per_angle),
-                            frame_id=frame_id)
+        count = write_moves(bag, _schedule(sim, angles, moves_per_angle), frame_id=frame_id)
     size = sum(p.stat().st_size for p in path.rglob('*') if p.is_file())
     changes = (*(f'drift {d}' for d in drift), *(f'step {s}' for s in steps),
                *(f'effect {e}' for e in effects))
@@ -210,3 +249,38 @@ def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
                              size=size, changes=changes, sample_period=sim.config.sample_period,
                              record_length=sim.config.record, dwell_length=sim.config.dwell,
                              model=model_path)
+
+
+def _schedule(sim: GalvoSimulator, angles: Sequence[float],
+              moves_per_angle: int) -> Iterator[Move]:
+    """The moves of the schedule, simulated :data:`CHUNK` at a time as they are taken.
+
+    The same moves as ``sim.moves(angles=angles, moves_per_angle=moves_per_angle)`` (bit for
+    bit within an angle; where one angle ends and the next starts, the simulator's batches no
+    longer straddle the two, which changes the current by parts in 1e15), without its list of
+    every target of the schedule.
+    """
+    for angle in angles:
+        left = moves_per_angle
+        while left:
+            n = min(CHUNK, left)  # even: CHUNK and moves_per_angle are
+            yield from sim.moves(angles=[angle], moves_per_angle=n)
+            left -= n
+
+
+def _check_space(path: Path, *, moves: int, samples: int) -> None:
+    """Refuse a bag that cannot fit on the disk it goes to (before the first move).
+
+    Raises:
+        ConfigurationError: Even compressed, the samples need more than the free space.
+    """
+    need = _COMPRESSED * moves * 2 * samples * 8  # current and encoder, float64
+    where = next((p for p in (path, *path.parents) if p.exists()), Path('.'))
+    try:
+        free = shutil.disk_usage(where).free
+    except OSError:
+        return  # unknown: the write itself will say
+    if need > free:
+        msg = (f'the bag would take about {need / 1e9:.3g} GB ({moves} moves of {samples} '
+               f'samples), more than the {free / 1e9:.3g} GB free on {where}')
+        raise ConfigurationError(msg)

@@ -85,3 +85,45 @@ def test_parameter_files_with_bad_values(tmp_path: Path, option: str, value: str
     proc = run('identify', NOMINAL, option, path)
     assert_error_line(proc, 'identify', needle, str(path))
     assert proc.stdout == ''
+
+
+# ------------------------------------------------------------------ simulate (defects 11, 13)
+
+def assert_usage_error(proc: subprocess.CompletedProcess[str], command: str,
+                       *needles: str) -> None:
+    """A usage error: exit 2, the parser's usage, then one error line."""
+    assert 'Traceback' not in proc.stderr, proc.stderr
+    assert proc.returncode == 2, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith(f'galvo-sysid {command}: error: argument '), last
+    for needle in needles:
+        assert needle in last, last
+
+
+def test_simulate_seed_out_of_range(tmp_path: Path) -> None:
+    proc = run('simulate', '--out', tmp_path / 's1', '--seed', '-1', '--moves-per-angle', '2')
+    assert_usage_error(proc, 'simulate', '--seed', 'within 0..2147483647')
+    assert not (tmp_path / 's1').exists()
+
+
+def test_simulate_a_billion_moves_is_refused_at_once(tmp_path: Path) -> None:
+    """It built every move in memory first (MemoryError after 2.7 GB under a 3 GB limit)."""
+    proc = run('simulate', '--out', tmp_path / 'huge', '--moves-per-angle', '1000000000',
+               memory=2_000_000_000, timeout=60)
+    assert_usage_error(proc, 'simulate', '--moves-per-angle', 'within 2..1000000')
+    assert not (tmp_path / 'huge').exists()
+
+
+def test_simulate_absurd_effect_parameter(tmp_path: Path) -> None:
+    proc = run('simulate', '--out', tmp_path / 's2', '--effect', 'input_delay:delay=1',
+               '--moves-per-angle', '4')
+    assert_error_line(proc, 'simulate', 'input_delay: delay must be > 0 and <= 0.01 s')
+    assert not (tmp_path / 's2').exists()
+
+
+def test_simulate_limits_are_the_drivers() -> None:
+    """The parser writes the driver's ranges out (to stay light): the same."""
+    from galvo_sysid.cli.simulate import LIMITS
+    from galvo_sysid.field.simulate import schedule_limits
+
+    assert schedule_limits() == LIMITS
