@@ -16,6 +16,7 @@ from galvo_sysid.model.changes import Drift, StepChange
 from galvo_sysid.model.paper import PAPER_MODEL
 from galvo_sysid.model.plant import PlantModel
 from galvo_sysid.sim.controller import ControllerConfig
+from galvo_sysid.sim.dither import DitherConfig
 from galvo_sysid.sim.profiles import ProfileConfig
 
 if TYPE_CHECKING:
@@ -54,6 +55,7 @@ class SimulatorConfig:
         steps: Plant step changes.
         method: ``'auto'``, ``'fast'`` (linear plants only) or ``'exact'``.
         substeps: Sub-steps per sample over which saturation is evaluated.
+        dither: Tones added to every move's current command (default: none).
     """
 
     plant: PlantModel = PAPER_MODEL
@@ -72,6 +74,7 @@ class SimulatorConfig:
     steps: tuple[StepChange, ...] = ()
     method: str = 'auto'
     substeps: int = 8
+    dither: DitherConfig = field(default_factory=DitherConfig)
 
     def __post_init__(self) -> None:
         def check(name: str, *, positive: bool = False, allow_inf: bool = False) -> None:
@@ -114,6 +117,8 @@ class SimulatorConfig:
             raise ConfigurationError(f'method must be one of {METHODS}, got {self.method!r}')
         if not all(isinstance(d, Drift) for d in self.drifts):
             raise ConfigurationError('drifts must be Drift instances')
+        if not isinstance(self.dither, DitherConfig):
+            raise ConfigurationError('dither must be a DitherConfig')
         if not all(isinstance(s, StepChange) for s in self.steps):
             raise ConfigurationError('steps must be StepChange instances')
 

@@ -6,8 +6,9 @@ the velocity returns exactly to zero. The pulse's shape (``ProfileConfig.shape``
 ``'scurve'`` (default: jerk-limited bang-bang, a trapezoidal pulse with ramps of
 ``jerk_time``), ``'sine-squared'`` (a sin^2 pulse: smooth, little energy at high
 frequencies) or ``'minimum-jerk'`` (the acceleration of the quintic minimum-jerk path,
-60 tau (1 - tau) (1 - 2 tau) over the whole move). The move's duration grows with the square root of the angle (constant
-peak acceleration ``peak_current * k0``) but is at least ``min_duration``. The time defaults
+60 tau (1 - tau) (1 - 2 tau) over the whole move). The move's duration grows with the square
+root of the angle (constant peak acceleration ``peak_current * k0``) but is at least
+``min_duration``. The time defaults
 scale with the sample period (20 and 3 samples): on the paper's scanner (10 us; 1 A peak,
 0.2 ms minimum, 30 us ramps) a 0.03 deg move takes 0.2 ms, 0.3 deg 0.62 ms and 3 deg 1.9 ms,
 well inside the 5.12 ms record.

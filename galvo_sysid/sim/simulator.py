@@ -75,7 +75,7 @@ from __future__ import annotations
 import math
 from collections import OrderedDict
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -90,6 +90,7 @@ from galvo_sysid.model.plant import PlantModel
 from galvo_sysid.model.sampling import ContinuousPlant, sample_plant
 from galvo_sysid.sim.config import Move, SimulatorConfig
 from galvo_sysid.sim.controller import LoopMargins, design_controller, loop_margins
+from galvo_sysid.sim.dither import dither_signal
 from galvo_sysid.sim.loop import ClosedLoop, map_state
 from galvo_sysid.sim.profiles import MoveProfile, move_profile
 
@@ -249,6 +250,9 @@ class GalvoSimulator:
             prof = move_profile(angle, length=cfg.move_length, record_length=cfg.record,
                                 k0=design.modal.k0, dynamics=design.dynamics,
                                 sample_period=cfg.sample_period, config=cfg.profile)
+            if cfg.dither.active:
+                prof = replace(prof, feedforward=prof.feedforward + dither_signal(
+                    cfg.dither, model=design, record=cfg.record, length=cfg.move_length))
             self._profiles[angle] = prof
         return prof
 
