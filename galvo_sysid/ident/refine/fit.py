@@ -53,7 +53,6 @@ from galvo_sysid.ident.refine.result import RefinedFit
 from galvo_sysid.ident.refine.window import (
     Whitener,
     WindowProblem,
-    noise_whitener,
     window_records,
 )
 from galvo_sysid.model.dynamics import InputDynamics, check_sample_period, split_delay
@@ -216,7 +215,7 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
             best = (key, x1)
     x = best[1] if best is not None else starts[0]
     if two_stage:
-        _prewhiten(joint, x, whiten_order)
+        joint.prewhiten(x, whiten_order)
         x = polish(x)
     profiles: list[ModeProfile] = []
     if noisy and n:
@@ -259,25 +258,6 @@ def _starts(joint: JointProblem, initial: ModalModel, x_init: NDArray[np.float64
     if moved:
         starts.append(x_init)
     return starts
-
-
-def _prewhiten(joint: JointProblem, x: NDArray[np.float64], order: int) -> None:
-    """Stage 2: each window's noise whitener from its moves' deviations at x, and its weight.
-
-    The deviations are each move's residual from the window's mean, whole: the noise is
-    stationary, and each move's own initial conditions are part of it (the nuisance columns
-    are projected out after whitening, as generalised least squares with nuisance does).
-    """
-    omega, zeta, lag = joint.unpack(x)
-    weights = []
-    for prob, coef in zip(joint.problems, joint.coefficients(x), strict=True):
-        dev = prob.deviations(omega, zeta, lag, coef)
-        prob.set_whitening(noise_whitener(dev, order,
-                                          float(np.sqrt(np.mean(prob.yf_raw**2)))))
-        wdev = prob.apply_whitening(dev, axis=1)
-        weights.append(1.0 / max(float(np.sqrt(np.mean(wdev**2) / (prob.moves - 1))),
-                                 1e-300))
-    joint.set_weights(weights)
 
 
 def _profile_and_search(joint: JointProblem, x: NDArray[np.float64],

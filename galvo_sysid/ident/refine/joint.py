@@ -23,6 +23,7 @@ import numpy as np
 from scipy.linalg import qr, solve_triangular
 
 from galvo_sysid.errors import IdentificationError
+from galvo_sysid.ident.refine.window import noise_whitener
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -53,6 +54,25 @@ class JointProblem:
         self.n_modes = self.problems[0].n_modes
         self.fixed_lag = fixed_lag
         self.n_eval = 0
+        self.set_weights(weights)
+
+    def prewhiten(self, x: NDArray[np.float64], order: int) -> None:
+        """Whiten each window by its noise model at x, and weigh it by its noise.
+
+        The noise model comes from the moves' deviations from the window's mean at x, whole:
+        the noise is stationary, and each move's own initial conditions are part of it (the
+        nuisance columns are projected out after whitening, as generalised least squares with
+        nuisance does). A window without noise is left unwhitened.
+        """
+        omega, zeta, lag = self.unpack(x)
+        weights = []
+        for prob, coef in zip(self.problems, self.coefficients(x), strict=True):
+            dev = prob.deviations(omega, zeta, lag, coef)
+            prob.set_whitening(noise_whitener(dev, order,
+                                              float(np.sqrt(np.mean(prob.yf_raw**2)))))
+            wdev = prob.apply_whitening(dev, axis=1)
+            weights.append(1.0 / max(float(np.sqrt(np.mean(wdev**2) / (prob.moves - 1))),
+                                     1e-300))
         self.set_weights(weights)
 
     def set_weights(self, weights: Floats) -> None:
