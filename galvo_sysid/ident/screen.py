@@ -14,9 +14,11 @@ standard deviations is set aside with its reason. With Gaussian noise the larges
 record's N deviations rarely passes 5; the default limit of 10 keeps healthy moves, and a
 glitch below it shifts the average of M moves by less than about 10 / sqrt(M) of its noise.
 
-The per-sample scatter has a floor (a share of its median over the record, and the encoder's
-quantisation step), so samples where every move reads the same count do not make the last
-count of noise an outlier.
+The per-sample scatter is at least the running median of its neighbours' (15 samples: the
+MAD of a few moves scatters by about 30 % at 20 moves, and over hundreds of samples some would
+come out far too small) and has a floor (a share of its median over the record, and the
+encoder's quantisation step), so samples where every move reads the same count do not make the
+last count of noise an outlier.
 
 A move orders of magnitude larger than the others (a rescaled or corrupted record) is set
 aside first, before it can swamp the window's mean. If more than ``max_fraction`` of the
@@ -54,6 +56,7 @@ DEFAULT_MAX_FRACTION = 0.2
 _MIN_MOVES = 5        # fewer moves: no robust median to screen against
 _GROSS = 100.0        # a move this many times larger than the typical one is not the same move
 _FLOOR_SHARE = 0.2    # the per-sample scatter is at least this share of its median
+_POOL = 15            # samples whose scatter is pooled (running median) with each sample's
 
 
 @dataclass(frozen=True)
@@ -81,11 +84,23 @@ def _quantum(x: NDArray[np.float64]) -> float:
     return float(np.min(steps)) if steps.size else 0.0
 
 
+def _pooled(scale: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Running median of the per-sample scatter over ``_POOL`` neighbouring samples."""
+    half = _POOL // 2
+    padded = np.pad(scale, half, mode='edge')
+    windows = np.lib.stride_tricks.sliding_window_view(padded, _POOL)
+    return np.asarray(np.median(windows, axis=1), dtype=np.float64)
+
+
 def _worst(x: NDArray[np.float64], floor: float) -> tuple[NDArray[np.float64],
                                                            NDArray[np.intp]]:
     """Per move: largest |deviation from the per-sample median| / robust scatter, and where."""
     dev = x - np.median(x, axis=0)
     scale = 1.4826 * np.median(np.abs(dev), axis=0)
+    # the MAD of a few moves scatters (about 30 % for 20 moves): over hundreds of samples some
+    # come out far too small and make the last sigma of noise an outlier; pooled with its
+    # neighbours (a glitch in one move barely moves either median) it stays near the truth
+    scale = np.maximum(scale, _pooled(scale))
     positive = scale[scale > 0]
     typical = float(np.median(positive)) if positive.size else 0.0
     scale = np.maximum(scale, max(_FLOOR_SHARE * typical, floor, 1e-300))

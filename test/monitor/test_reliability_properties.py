@@ -415,7 +415,9 @@ def test_identify_window_on_spoilt_simulated_windows(spoilers: list[str], expone
                           jackknife_groups=2)
     if result is not None:
         assert isinstance(result, IdentificationResult)
-        assert result.moves == cur.shape[0]
+        # every move is either used or set aside by the screening, with a reason
+        assert result.moves + len(result.set_aside) == cur.shape[0]
+        assert all(0 <= i < cur.shape[0] and reason for i, reason in result.set_aside)
 
 
 def _spoil(cur: np.ndarray, enc: np.ndarray, spoilers: list[str], factor: float,

@@ -97,13 +97,17 @@ def _recording_marker(bag: Path) -> dict[str, str] | None:
     return None
 
 
-def _mcap_has_footer(path: Path) -> bool:
+def _mcap_state(path: Path) -> str:
+    """'complete', 'cut' (mcap magic at the start, no footer) or 'foreign' (no magic)."""
     with path.open('rb') as f:
         size = f.seek(0, 2)
+        f.seek(0)
+        if f.read(8) != MCAP_MAGIC[:min(size, 8)] or size == 0:
+            return 'foreign'
         if size < 8 + 37:
-            return False
+            return 'cut'
         f.seek(-8, 2)
-        return f.read(8) == MCAP_MAGIC
+        return 'complete' if f.read(8) == MCAP_MAGIC else 'cut'
 
 
 def _sqlite_unfinished(path: Path, *, has_metadata: bool) -> str | None:
@@ -153,7 +157,12 @@ def check_complete(path: str | os.PathLike[str]) -> None:
     for file in _storage_files(path):
         if not _regular(file):
             continue
-        if file.suffix == '.mcap' and not _mcap_has_footer(file):
+        state = _mcap_state(file) if file.suffix == '.mcap' else 'complete'
+        if state == 'foreign':
+            msg = (f'cannot read bag {shown}: {file.name} is not an mcap file (no mcap magic '
+                   f'at its start)')
+            raise CorruptBagError(msg)
+        if state == 'cut':
             msg = (f'bag {shown} is incomplete (the mcap file {file.name} has no footer: '
                    f'the recording was interrupted or the file was cut short); {fix}')
             raise IncompleteBagError(msg)
@@ -520,7 +529,7 @@ def _recover_mcap(file: Path, hashes: dict[str, str]) -> _Result:
             hashes.setdefault(channel.topic, channel.meta('topic_type_hash'))
     repaired = False
     dropped = 0
-    if not (scan.complete and _mcap_has_footer(file) and _reads(file)):
+    if not (scan.complete and _mcap_state(file) == 'complete' and _reads(file)):
         if scan.loose:
             msg = (f'cannot recover {file}: it holds messages outside chunks (not a '
                    f'recording of galvo-sysid or rosbag2)')
