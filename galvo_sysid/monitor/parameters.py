@@ -15,7 +15,9 @@ name in :data:`NODE_PARAMETERS`. Everything else reads them:
 
 from __future__ import annotations
 
+import array
 import math
+import unicodedata
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -30,6 +32,10 @@ if TYPE_CHECKING:
 __all__ = [
     'DECLARED_MODES',
     'DRIVER_PARAMETERS',
+    'MAX_ANGLES',
+    'MAX_EFFECTS_TEXT',
+    'MAX_LIST',
+    'MAX_TEXT',
     'MONITOR_PARAMETERS',
     'NODE_PARAMETERS',
     'RELIABILITY',
@@ -45,6 +51,37 @@ RELIABILITY = ('reliable', 'best_effort')
 """Choices of the move topics' reliability (``qos_reliability`` parameters)."""
 
 
+MAX_TEXT = 4096
+"""Longest text parameter [characters] unless its spec says otherwise (a path fits)."""
+
+MAX_LIST = 1000
+"""Most elements of a list parameter unless its spec says otherwise."""
+
+MAX_ANGLES = 256
+"""Most angles in the driver's schedule (the paper's has 19)."""
+
+MAX_EFFECTS_TEXT = 65_536
+"""Longest ``effects`` JSON [characters] (checked before it is parsed)."""
+
+
+def _show(value: Any, limit: int = 60) -> str:
+    """``repr(value)`` cut to about ``limit`` characters (a value quoted in a reason)."""
+    if isinstance(value, list | tuple) and len(value) > limit:  # never repr a huge list
+        value = [*value[:limit], ...]
+    text = repr(value)
+    return text if len(text) <= limit else f'{text[:limit - 3]}...'
+
+
+def _kind(value: Any) -> str:
+    names = {bool: 'a boolean', int: 'an integer', float: 'a floating-point number',
+             str: 'text', list: 'a list', tuple: 'a list', type(None): 'no value'}
+    return names.get(type(value), type(value).__name__)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
 @dataclass(frozen=True)
 class ParamSpec:
     """One declared parameter: default, description and (for numbers) an inclusive range.
@@ -54,6 +91,13 @@ class ParamSpec:
     of None declares an optional number: not set unless given (a parameter file, the
     command line, a live change), its value None until then; ``builtin`` is then the value
     that applies while it is not set (what a parameter file may spell out).
+
+    The value's type is the default's, as ROS takes it: an integer parameter refuses 10.7
+    (and 10.0), a floating-point one refuses an integer (ROS does: write ``2.0``), a list
+    holds numbers of the default's element type, each checked against the range (and each
+    finite). Texts and
+    lists have bounded lengths; texts refuse control characters (one line each, except a
+    ``multiline`` text: tabs and line breaks allowed).
 
     Attributes:
         name: The parameter's name (``tolerances.k0``: nested ``tolerances: {k0: ...}`` in
@@ -67,6 +111,12 @@ class ParamSpec:
         exclusive_low: ``low`` itself is not allowed.
         builtin: For an optional number (default None): the value that applies while it is
             not set.
+        zero_off: 0 is allowed too, below ``low``: it switches the setting off (e.g. a
+            period of 0: never); other values below ``low`` are refused.
+        min_length: Fewest elements of a list.
+        max_length: Most elements of a list or characters of a text (None:
+            :data:`MAX_LIST` / :data:`MAX_TEXT`).
+        multiline: A text that may hold tabs and line breaks (JSON).
     """
 
     name: str
@@ -78,6 +128,10 @@ class ParamSpec:
     choices: tuple[str, ...] = ()
     exclusive_low: bool = False
     builtin: float | None = None
+    zero_off: bool = False
+    min_length: int = 0
+    max_length: int | None = None
+    multiline: bool = False
 
     @property
     def text(self) -> str:
@@ -87,24 +141,88 @@ class ParamSpec:
         return self.description
 
     def check(self, value: Any) -> str | None:
-        """Why ``value`` is not acceptable, or None."""
-        if self.choices and value not in self.choices:
-            return f'{self.name} must be one of {list(self.choices)}, got {value!r}'
-        if self.default is None and value is not None and (
-                isinstance(value, bool) or not isinstance(value, int | float)):
-            return f'{self.name} must be a number, got {value!r}'
-        values: Sequence[Any]
-        values = value if isinstance(value, list | tuple) else [value]
+        """Why ``value`` is not acceptable (one short line), or None.
+
+        A list may come as a list, a tuple or an ``array.array`` (rclpy gives arrays set at
+        run time as ``array.array``).
+        """
+        if isinstance(value, array.array):
+            value = value.tolist()
+        why = self._type_error(value)
+        if why is not None:
+            return why
+        if isinstance(value, str):
+            return self._text_error(value)
+        if isinstance(value, list | tuple):
+            if len(value) < self.min_length:
+                return (f'{self.name} must not be empty' if self.min_length == 1 else
+                        f'{self.name} must have at least {self.min_length} elements')
+            most = MAX_LIST if self.max_length is None else self.max_length
+            if len(value) > most:
+                return f'{self.name} must have at most {most} elements, got {len(value)}'
+            values: Sequence[Any] = value
+        else:
+            values = [value]
         for v in values:
-            if isinstance(v, bool) or not isinstance(v, int | float):
-                continue
-            if isinstance(v, float) and not math.isfinite(v):
-                return f'{self.name} must be finite, got {v}'
-            if self.low is not None and (v < self.low or (self.exclusive_low and v <= self.low)):
-                op = '>' if self.exclusive_low else '>='
-                return f'{self.name} must be {op} {self.low:g}, got {v}'
-            if self.high is not None and v > self.high:
-                return f'{self.name} must be <= {self.high:g}, got {v}'
+            if _is_number(v):
+                why = self._number_error(v)
+                if why is not None:
+                    return why
+        return None
+
+    def _type_error(self, value: Any) -> str | None:
+        """Why ``value`` is not of this parameter's type (ROS's, from the default), or None."""
+        default = self.default
+        if default is None:  # an optional number: dynamically typed
+            if value is None or _is_number(value):
+                return None
+            return f'{self.name} must be a number, got {_show(value)}'
+        if isinstance(default, list | tuple):
+            item = type(default[0]) if default else float
+            if not isinstance(value, list | tuple):
+                return f'{self.name} must be a list of numbers, got {_kind(value)}'
+            for v in value:
+                if type(v) is not item:
+                    hint = ' (write 2.0 for 2)' if item is float and type(v) is int else ''
+                    plural = {float: 'floating-point numbers', int: 'integers',
+                              bool: 'booleans', str: 'texts'}.get(item, item.__name__)
+                    return (f'{self.name} must be a list of {plural}{hint}, got '
+                            f'{_kind(v)} {_show(v)}')
+            return None
+        if type(value) is type(default):
+            return None
+        need = _kind(default)
+        if isinstance(default, float) and type(value) is int:
+            need += f' (ROS refuses an integer here: write {value}.0)'
+        if isinstance(default, int) and not isinstance(default, bool) and \
+                isinstance(value, float) and math.isfinite(value):
+            return f'{self.name} must be an integer, got {_show(value)}'
+        return f'{self.name} must be {need}, got {_kind(value)} {_show(value)}'
+
+    def _text_error(self, value: str) -> str | None:
+        most = MAX_TEXT if self.max_length is None else self.max_length
+        if len(value) > most:
+            return f'{self.name} must be at most {most} characters, got {len(value)}'
+        allowed = '\t\n\r' if self.multiline else ''
+        bad = next((c for c in value if unicodedata.category(c) == 'Cc' and c not in allowed),
+                   None)
+        if bad is not None:
+            return f'{self.name} must not hold control characters, got {bad!r}'
+        if self.choices and value not in self.choices:
+            return f'{self.name} must be one of {list(self.choices)}, got {_show(value)}'
+        return None
+
+    def _number_error(self, v: float) -> str | None:
+        if isinstance(v, float) and not math.isfinite(v):
+            return f'{self.name} must be finite, got {v}'
+        if self.zero_off and v == 0:
+            return None
+        if self.low is not None and (v < self.low or (self.exclusive_low and v <= self.low)):
+            op = '>' if self.exclusive_low else '>='
+            off = ' (or 0: off)' if self.zero_off else ''
+            return f'{self.name} must be {op} {self.low:g}{off}, got {_show(v)}'
+        if self.high is not None and v > self.high:
+            return f'{self.name} must be <= {self.high:g}, got {_show(v)}'
         return None
 
 
@@ -117,11 +235,12 @@ DRIVER_PARAMETERS = (
     ParamSpec('dwell_length', -1, 'samples between a record and the next move (-1: the '
               "model's)", -1, 1_000_000, read_only=True),
     ParamSpec('angles', list(PAPER_ANGLES), 'rotation angles of the schedule [deg] (positive; '
-              'each is moved forward then back)', 1e-6, 20.0),
+              'each is moved forward then back)', 1e-6, 20.0, min_length=1,
+              max_length=MAX_ANGLES),
     ParamSpec('moves_per_angle', 200, 'moves per angle, alternating +a/-a (even)', 2, 1_000_000),
     ParamSpec('cycles', 0, 'times through the schedule (0: forever)', 0, 1_000_000_000),
     ParamSpec('rate_factor', 1.0, 'simulated seconds per wall second (1 real time, 0 as fast '
-              'as possible)', 0.0, 1e6),
+              'as possible)', 1e-3, 1e6, zero_off=True),
     ParamSpec('seed', 0, 'noise seed', 0, 2**31 - 1, read_only=True),
     ParamSpec('wait_for_subscribers', 1, 'subscribers each topic needs before moves start '
               '(0: start at once)', 0, 1000),
@@ -142,7 +261,8 @@ DRIVER_PARAMETERS = (
     ParamSpec('step.factor', 1.0, 'the step multiplies the parameter by this', 0.01, 100.0),
     ParamSpec('step.at_move', -1, 'move index of the step (-1: the next move)', -1, 2**62),
     ParamSpec('effects', '[]', "physical effects added to the model's, as JSON: [{\"effect\": "
-              'name, "parameters": {...}}, ...] (see galvo_sysid.model.effects)'),
+              'name, "parameters": {...}}, ...] (see galvo_sysid.model.effects)',
+              max_length=MAX_EFFECTS_TEXT, multiline=True),
 )
 """Parameters of the simulated scanner (``galvo_driver``)."""
 
@@ -150,17 +270,21 @@ DRIVER_PARAMETERS = (
 _WINDOWER_SPECS = (
     ParamSpec('window_size', 100, 'moves of one signed target angle per identification window',
               2, 100_000),
-    ParamSpec('samples', 0, 'expected samples per record (0: the first move of a window '
-              'fixes it)', 0, 10_000_000),
+    ParamSpec('samples', 0, 'expected samples per record (0: any; moves of each length '
+              'fill windows of their own)', 0, 10_000_000),
     ParamSpec('max_samples', 65536, 'largest record accepted [samples]', 32, 10_000_000),
     ParamSpec('pair_timeout', 1.0, 'a half still unpaired this long (by stamps) is set aside '
               '[s]', 0.0, 3600.0, exclusive_low=True),
-    ParamSpec('time_jump', 1.0, 'stamps jumping back by more than this reset the buffers [s]',
-              0.0, 1e6, exclusive_low=True),
+    ParamSpec('time_jump', 1.0, 'a stamp this far from the data clock is held apart: set '
+              'aside alone, unless the next halves confirm the new time (a loop back then '
+              'restarts the buffers) [s]', 0.0, 1e6, exclusive_low=True),
     ParamSpec('max_pending', 2000, 'most unpaired halves held', 1, 10_000_000),
-    ParamSpec('max_windows', 64, 'most open windows held (distinct target angles)', 1, 100_000),
-    ParamSpec('max_buffered_samples', 20_000_000, 'most samples held in open windows',
-              1000, 2_000_000_000),
+    ParamSpec('max_windows', 64, 'most open windows held (one per target angle, sample period '
+              'and record length)', 1, 100_000),
+    ParamSpec('max_buffered_bytes', 268_435_456, 'most bytes of samples held (open windows, '
+              'and a quarter of it at most for halves waiting)', 1_000_000, 1_000_000_000_000),
+    ParamSpec('window_timeout', 300.0, 'a window not complete this long after its first move '
+              '(by stamps) is set aside [s]', 0.0, 1e7, exclusive_low=True),
 )
 
 SYSID_PARAMETERS = (
@@ -180,11 +304,12 @@ SYSID_PARAMETERS = (
               'link: takes reliable and best-effort publishers, lost moves are not resent)',
               choices=RELIABILITY, read_only=True),
     ParamSpec('warnings_per_second', 20, 'most warning lines a second (the rest summed up)',
-              1, 10_000),
-    ParamSpec('stats_period', 30.0, 'log counters every this many seconds (0: never)',
-              0.0, 1e6),
+              1, 100, read_only=True),
+    ParamSpec('stats_period', 30.0, 'log counters every this many seconds (0: never; else at '
+              'least 0.1)', 0.1, 1e6, zero_off=True),
     ParamSpec('diagnostics_period', 1.0, 'publish counters on /diagnostics every this many '
-              'seconds (0: never)', 0.0, 1e6, read_only=True),
+              'seconds (0: never; else at least 0.1)', 0.1, 1e6, read_only=True,
+              zero_off=True),
     ParamSpec('hardware_id', '', "the scanner's name in diagnostics (default: the namespace)"),
 )
 """Parameters of online identification (``sysid``)."""
@@ -247,7 +372,7 @@ WATCHDOG_PARAMETERS = (
     *_MONITOR_SPECS,
     ParamSpec('stale_timeout', 5.0, 'STALE after this long without a result [s]',
               0.0, 1e6, exclusive_low=True),
-    ParamSpec('publish_rate', 1.0, 'diagnostics per second', 0.0, 1000.0, exclusive_low=True,
+    ParamSpec('publish_rate', 1.0, 'diagnostics per second', 0.0, 10.0, exclusive_low=True,
               read_only=True),
     ParamSpec('hardware_id', '', "the scanner's name in diagnostics (default: the namespace)"),
 )

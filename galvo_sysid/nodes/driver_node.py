@@ -32,13 +32,14 @@ from galvo_sysid_msgs.msg import MoveSamples
 from rclpy.duration import Duration
 from rclpy.node import Node
 
-from galvo_sysid.errors import ConfigurationError, GalvoSysidError
+from galvo_sysid.errors import GalvoSysidError
 from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields
 from galvo_sysid.interfaces.topics import CURRENT_TOPIC, ENCODER_TOPIC
 from galvo_sysid.model import Drift, PlantModel, StepChange, load_model
-from galvo_sysid.model.effects import Effect, effects_from_list
+from galvo_sysid.model.changes import plant_at
+from galvo_sysid.model.effects import Effect, effects_from_json
 from galvo_sysid.model.physics import check_parameter_name
-from galvo_sysid.monitor.parameters import DRIVER_PARAMETERS
+from galvo_sysid.monitor.parameters import DRIVER_PARAMETERS, MAX_EFFECTS_TEXT
 from galvo_sysid.nodes.framework import (
     ParameterSet,
     logger,
@@ -46,6 +47,7 @@ from galvo_sysid.nodes.framework import (
     run_node,
 )
 from galvo_sysid.sim.config import SimulatorConfig
+from galvo_sysid.sim.loop import ClosedLoop
 from galvo_sysid.sim.simulator import GalvoSimulator
 
 if TYPE_CHECKING:
@@ -53,28 +55,20 @@ if TYPE_CHECKING:
 
     from galvo_sysid.sim.config import Move
 
-__all__ = ['DriverNode', 'PlantChanges', 'main', 'simulator_config']
+__all__ = ['DriverNode', 'PlantChanges', 'check_values', 'main', 'simulator_config']
 
 
 def _effects(text: str) -> tuple[Effect, ...]:
-    if len(text) > 100_000:
-        raise ConfigurationError('effects: longer than 100000 characters')
-    try:
-        items = json.loads(text or '[]')
-    except json.JSONDecodeError as err:
-        raise ConfigurationError(f'effects is not valid JSON: {err}') from None
-    except RecursionError:
-        raise ConfigurationError('effects: JSON nested too deeply') from None
-    return effects_from_list(items, where='effects')
+    """The ``effects`` parameter through the effect registry (size and nesting bounded
+    before the JSON is parsed, each effect's parameters checked against their ranges)."""  # noqa: D205, D209
+    return effects_from_json(text, where='effects', max_chars=MAX_EFFECTS_TEXT)
 
 
-def _validate(values: dict[str, Any]) -> str | None:
+def check_values(values: dict[str, Any]) -> str | None:
+    """Why the driver's parameter values do not go together, or None (no simulator needed;
+    each value has passed its :meth:`~galvo_sysid.monitor.parameters.ParamSpec.check`)."""  # noqa: D205, D209
     if values['moves_per_angle'] % 2:
         return f'moves_per_angle must be even, got {values["moves_per_angle"]}'
-    if not values['angles']:
-        return 'angles must not be empty'
-    if max(values['angles']) > 20.0:
-        return 'angles must stay within the +-20 deg range'
     try:
         _effects(values['effects'])
         for key in ('drift.parameter', 'step.parameter'):
@@ -105,6 +99,32 @@ class PlantChanges:
     def __init__(self, simulator: GalvoSimulator) -> None:
         self.sim = simulator
         self._base: PlantModel = simulator.config.plant
+        self._checked: tuple[Any, ...] | None = None
+
+    def check(self, values: dict[str, Any]) -> None:
+        """Check that the simulator can run the plant these values make, before any is
+        applied: the effects (the registry's checks, then the plant they make) and a step
+        change must leave the controller a stable closed loop.
+
+        Raises:
+            ConfigurationError: Why not (e.g. ``the closed loop is unstable on this plant``,
+                an input delay below the input dynamics' own).
+        """  # noqa: D205
+        key = tuple(values[k] for k in ('effects', 'step.parameter', 'step.factor',
+                                         'step.at_move'))
+        if key == self._checked:
+            return
+        sim = self.sim
+        physics = self._base.with_effects(_effects(values['effects'])).physics()
+        plants = [physics]
+        name, factor = values['step.parameter'], values['step.factor']
+        if name and factor != 1.0:
+            at = max(values['step.at_move'], sim.move_count)
+            step = StepChange(parameter=name, value=factor, at=at, unit='move', relative=True)
+            plants.append(plant_at(physics, time=sim.time, move=at, steps=[step]))
+        for plant in plants:
+            ClosedLoop(plant, sim.controller, sim.config)
+        self._checked = key
 
     def apply(self, values: dict[str, Any], changed: set[str]) -> list[str]:
         """Apply the changes named in ``changed``; return what was done, one line each."""
@@ -143,11 +163,15 @@ class DriverNode(Node):
         super().__init__('galvo_driver', **kwargs)
         self.log = logger(self)
         self._lock = threading.Lock()
-        self.params = ParameterSet(self, DRIVER_PARAMETERS, validate=_validate, apply=self._apply)
+        self._ready = False  # the simulator's checks apply once it exists
+        self.params = ParameterSet(self, DRIVER_PARAMETERS, validate=self._validate,
+                                   apply=self._apply)
         v = self.params.values
         self.sim = GalvoSimulator(config=simulator_config(v), seed=v['seed'])
         self.sim.check_angles(v['angles'])
         self.changes = PlantChanges(self.sim)
+        self.changes.check(v)
+        self._ready = True
         for line in self.changes.apply(v, {n for n in v if n.startswith(('drift.', 'step.',
                                                                           'effects'))}):
             self.log.info(line)
@@ -158,6 +182,17 @@ class DriverNode(Node):
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name='galvo-driver', daemon=True)
         self._thread.start()
+
+    def _validate(self, values: dict[str, Any]) -> str | None:
+        """The values together, then (once the simulator runs) what it can simulate: the
+        angles on this scanner, the plant of the effects and a step."""  # noqa: D205, D209
+        reason = check_values(values)
+        if reason is not None or not self._ready:
+            return reason
+        with self._lock:
+            self.sim.check_angles(values['angles'])
+            self.changes.check(values)
+        return None
 
     def _apply(self, values: dict[str, Any], changed: set[str]) -> None:
         with self._lock:
