@@ -6,7 +6,10 @@ same code serves rclpy messages in the nodes and rosbags-deserialized messages i
 float64 arrays, no header) that a rosbags message class accepts; :func:`fill` sets them on an
 existing message (rclpy's float64[] fields get an ``array.array``).
 
-- ``MoveSamples`` <-> :class:`~galvo_sysid.monitor.moves.MoveHalf`
+- ``MoveSamples`` <-> :class:`~galvo_sysid.monitor.moves.MoveHalf`; from serialized (CDR)
+  bytes, :func:`read_move_samples` reads the fields and the record's length before any
+  sample is decoded (:class:`SerializedMoveSamples`), so an oversized record is refused
+  without ever being built
 - ``ModalParameters`` <-> :class:`~galvo_sysid.ident.result.IdentificationResult` plus its
   :class:`ResultStatus` (identified, or why not: the data do not match the model, the fit
   failed; the model file used)
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import array
 import math
+import struct
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -36,10 +40,13 @@ from galvo_sysid.monitor.verdict import (
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
+    from numpy.typing import NDArray
+
     from galvo_sysid.ident.result import IdentificationResult
 
 __all__ = [
     'ResultStatus',
+    'SerializedMoveSamples',
     'diagnostic_values',
     'drift_status_fields',
     'fill',
@@ -47,6 +54,7 @@ __all__ = [
     'modal_parameters_fields',
     'move_half_from_msg',
     'move_samples_fields',
+    'read_move_samples',
     'result_from_msg',
     'seconds_to_stamp',
     'stamp_to_seconds',
@@ -99,6 +107,121 @@ def move_half_from_msg(msg: Any, *, signal: str) -> MoveHalf:
                         stamp=stamp_to_seconds(msg.header.stamp), data=values)
     except (AttributeError, TypeError, ValueError, OverflowError) as err:
         raise InvalidDataError(f'bad MoveSamples message on {signal}: {err}') from err
+
+
+_CDR_BYTE_ORDERS = {b'\x00\x00': '>', b'\x00\x01': '<'}
+"""Encapsulation identifiers of plain CDR (XCDR1), big and little endian: what
+``rmw_fastrtps`` and rosbag2 carry."""
+
+_CDR_ORIGIN = 4
+"""CDR alignment counts from the end of the 4-byte encapsulation header."""
+
+
+@dataclass(frozen=True)
+class SerializedMoveSamples:
+    """A serialized ``MoveSamples`` message, its fields read, its samples not yet decoded.
+
+    Made by :func:`read_move_samples` in constant time whatever the record's length: the
+    length (:attr:`samples`) is known before any sample is decoded, so an oversized record is
+    refused without being built (:meth:`header_half`), an acceptable one decoded
+    (:meth:`half`).
+
+    Attributes:
+        move_id: ``move_id``.
+        target_angle: ``target_angle`` [deg].
+        sample_period: ``sample_period`` [s].
+        stamp: ``header.stamp`` [s].
+        samples: Number of samples in ``data``.
+        raw: The serialized bytes.
+        offset: Where the samples start in ``raw``.
+        byte_order: ``'<'`` or ``'>'``.
+    """
+
+    move_id: int
+    target_angle: float
+    sample_period: float
+    stamp: float
+    samples: int
+    raw: bytes | memoryview
+    offset: int
+    byte_order: str
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes the decoded samples take (8 per sample)."""
+        return 8 * self.samples
+
+    def half(self, signal: str) -> MoveHalf:
+        """The message as a :class:`MoveHalf`: the samples decoded into a new float64 array
+        (a copy: the half does not keep the message's bytes alive).
+
+        Raises:
+            InvalidDataError: ``signal`` is not one of ``SIGNALS``.
+        """  # noqa: D205
+        data = np.frombuffer(self.raw, dtype=np.dtype(f'{self.byte_order}f8'),
+                             count=self.samples, offset=self.offset)
+        return self._half(signal, data.astype(np.float64, copy=True))
+
+    def header_half(self, signal: str) -> MoveHalf:
+        """The message's fields as a :class:`MoveHalf` without samples (nothing decoded): what
+        a refused record is set aside as."""  # noqa: D205, D209
+        return self._half(signal, np.zeros(0))
+
+    def _half(self, signal: str, data: NDArray[np.float64]) -> MoveHalf:
+        if signal not in SIGNALS:
+            raise InvalidDataError(f'signal must be one of {SIGNALS}, got {signal!r}')
+        return MoveHalf(signal=signal, move_id=self.move_id, target_angle=self.target_angle,
+                        sample_period=self.sample_period, stamp=self.stamp, data=data)
+
+
+def read_move_samples(raw: bytes | memoryview) -> SerializedMoveSamples:
+    """Read a serialized ``MoveSamples`` message (CDR, as a raw subscription or a bag gives
+    it) without decoding its samples: constant time and memory whatever it holds.
+
+    The layout is the message's (``msg_defs/msg/MoveSamples.msg``): header (stamp, frame_id),
+    ``move_id``, ``target_angle``, ``sample_period``, ``data``; plain CDR in either byte
+    order. The decoded values are exactly rclpy's (a test compares them).
+
+    Raises:
+        InvalidDataError: Not a ``MoveSamples`` in plain CDR: unknown encapsulation, cut
+            short, or a length that runs past the end of the bytes.
+    """  # noqa: D205
+    view = memoryview(raw).cast('B') if not isinstance(raw, bytes) else raw
+    size = len(view)
+    if size < _CDR_ORIGIN:
+        raise InvalidDataError(f'MoveSamples message of {size} bytes: too short for CDR')
+    order = _CDR_BYTE_ORDERS.get(bytes(view[:2]))
+    if order is None:
+        raise InvalidDataError(f'MoveSamples message: unsupported CDR encapsulation '
+                               f'0x{bytes(view[:2]).hex()} (plain CDR expected)')
+
+    def at(pos: int, align: int, fmt: str) -> tuple[Any, int]:
+        pos += (-(pos - _CDR_ORIGIN)) % align
+        end = pos + struct.calcsize(fmt)
+        if end > size:
+            raise InvalidDataError(f'MoveSamples message cut short ({size} bytes)')
+        return struct.unpack_from(order + fmt, view, pos)[0], end
+
+    sec, pos = at(_CDR_ORIGIN, 4, 'i')
+    nanosec, pos = at(pos, 4, 'I')
+    frame_len, pos = at(pos, 4, 'I')
+    if frame_len > size - pos:
+        raise InvalidDataError(f'MoveSamples message: frame_id of {frame_len} bytes runs past '
+                               f'the end ({size} bytes)')
+    pos += frame_len
+    move_id, pos = at(pos, 8, 'Q')
+    target_angle, pos = at(pos, 8, 'd')
+    sample_period, pos = at(pos, 8, 'd')
+    count, pos = at(pos, 4, 'I')
+    if count:
+        pos += (-(pos - _CDR_ORIGIN)) % 8
+    if count > (size - pos) // 8:
+        raise InvalidDataError(f'MoveSamples message: data of {count} samples runs past the '
+                               f'end ({size} bytes)')
+    return SerializedMoveSamples(move_id=int(move_id), target_angle=float(target_angle),
+                                 sample_period=float(sample_period),
+                                 stamp=float(int(sec) + int(nanosec) * 1e-9),
+                                 samples=int(count), raw=raw, offset=pos, byte_order=order)
 
 
 def move_samples_fields(*, move_id: int, target_angle: float, sample_period: float,

@@ -16,7 +16,7 @@ import numpy as np
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['SIGNALS', 'MoveHalf', 'Window']
+__all__ = ['SIGNALS', 'MoveHalf', 'Window', 'too_long']
 
 SIGNALS = ('current', 'encoder')
 """The two halves of a move."""
@@ -82,3 +82,9 @@ class Window:
     def moves(self) -> int:
         """Number of moves in the window."""
         return len(self.move_ids)
+
+
+def too_long(signal: str, samples: int, limit: int) -> str:
+    """Why a record of ``samples`` samples, over ``limit``, is refused before it is decoded
+    (the sysid node and the bag reader say it alike)."""  # noqa: D205, D209
+    return f'{signal} record too long ({samples} > {limit} samples), refused before decoding'

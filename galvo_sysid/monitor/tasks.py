@@ -18,10 +18,11 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model.files import model_label
+from galvo_sysid.monitor.moves import too_long
 from galvo_sysid.monitor.pairing import MoveWindower
 from galvo_sysid.monitor.ratelog import RateLimitedLog
 from galvo_sysid.monitor.rejections import summarize_rejections
@@ -36,7 +37,22 @@ if TYPE_CHECKING:
     from galvo_sysid.monitor.moves import MoveHalf, Window
     from galvo_sysid.monitor.verdict import DriftVerdict
 
-__all__ = ['SysidTask', 'WatchdogTask', 'mismatch_message']
+__all__ = ['SerializedHalf', 'SysidTask', 'WatchdogTask', 'mismatch_message']
+
+
+class SerializedHalf(Protocol):
+    """A half not decoded yet, its record's length known (e.g.
+    :class:`~galvo_sysid.interfaces.messages.SerializedMoveSamples`)."""  # noqa: D205, D209
+
+    @property
+    def samples(self) -> int:
+        """Samples in the record."""
+
+    def half(self, signal: str) -> MoveHalf:
+        """Decode it."""
+
+    def header_half(self, signal: str) -> MoveHalf:
+        """Its fields without samples (nothing decoded)."""
 
 
 def mismatch_message(reason: str, *, model_path: str | None) -> str:
@@ -95,8 +111,8 @@ class SysidTask:
         resets = self.windower.resets
         windows = self.windower.add(half)
         if self.windower.resets != resets:
-            self._warn('stamps jumped back (a bag replay looping?): buffers reset',
-                       key='time jump')
+            self._warn('stamps jumped back and stayed back (a bag replay looping?): buffers '
+                       'reset', key='time jump')
         self._report()
         for w in windows:
             self.windows_completed += 1
@@ -110,6 +126,24 @@ class SysidTask:
         """Report a message that could not even be converted (counted as one rejection)."""
         self.windower.moves_rejected += 1
         self._warn(f'message set aside: {text}', key='bad message')
+
+    def add_serialized(self, msg: SerializedHalf, *, signal: str) -> list[Window]:
+        """Take one half still serialized: its record's length is judged before any sample
+        is decoded (an oversized record is refused without ever being built), then it is
+        decoded and taken like :meth:`add`."""  # noqa: D205, D209
+        limit = self.windower.max_samples
+        if msg.samples > limit:
+            self.refuse(msg.header_half(signal), too_long(signal, msg.samples, limit))
+            return []
+        return self.add(msg.half(signal))
+
+    def refuse(self, half: MoveHalf, reason: str) -> None:
+        """Set aside a half refused before its samples were decoded (an oversized record:
+        ``half`` has its fields, no samples), reported like every rejection."""  # noqa: D205, D209
+        self.halves_received += 1
+        self._last_input = time.monotonic()
+        self.windower.refuse(half, reason)
+        self._report()
 
     def tick(self) -> None:
         """Call periodically: expire unpaired halves when input has paused, flush the log.
@@ -154,17 +188,24 @@ class SysidTask:
 
     def stats(self) -> dict[str, int]:
         """Counters: halves received, moves accepted/rejected (and of those, halves of
-        another sample period than the model's), windows identified / failed / not matching
-        the model / dropped, resets, queue."""  # noqa: D205, D209
+        another sample period than the model's, halves refused before decoding, halves set
+        aside for their stamp, waiting halves evicted), windows identified / failed / not
+        matching the model / dropped, open windows evicted / expired, resets, queue, bytes of
+        samples buffered."""  # noqa: D205, D209
         w = self.windower
         f = self.fitter
         return {'halves_received': self.halves_received, 'moves_accepted': w.moves_accepted,
                 'moves_rejected': w.moves_rejected,
-                'halves_period_mismatched': w.period_mismatches, 'pending_halves': w.pending,
-                'open_windows': w.open_windows, 'windows_completed': self.windows_completed,
+                'halves_period_mismatched': w.period_mismatches,
+                'halves_refused': w.refused_halves, 'halves_stale': w.stale_halves,
+                'halves_evicted': w.halves_evicted, 'pending_halves': w.pending,
+                'held_halves': w.held, 'open_windows': w.open_windows,
+                'windows_completed': self.windows_completed,
                 'windows_identified': f.fitted, 'windows_failed': f.failed,
                 'windows_mismatched': f.mismatched, 'windows_dropped': f.dropped,
-                'windows_waiting': f.waiting, 'resets': w.resets}
+                'windows_waiting': f.waiting, 'windows_evicted': w.windows_evicted,
+                'windows_expired': w.windows_expired, 'resets': w.resets,
+                'buffered_bytes': w.buffered_bytes}
 
     def health(self, since: Mapping[str, int], *,
                now: Mapping[str, int] | None = None) -> tuple[int, str]:

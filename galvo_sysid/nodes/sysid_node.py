@@ -27,12 +27,12 @@ from diagnostic_msgs.msg import DiagnosticArray
 from galvo_sysid_msgs.msg import ModalParameters, MoveSamples
 from rclpy.node import Node
 
-from galvo_sysid.errors import GalvoSysidError
+from galvo_sysid.errors import GalvoSysidError, one_line
 from galvo_sysid.interfaces.messages import (
     fill,
     fill_header,
     modal_parameters_fields,
-    move_half_from_msg,
+    read_move_samples,
     unidentified_fields,
 )
 from galvo_sysid.interfaces.topics import (
@@ -61,13 +61,19 @@ from galvo_sysid.nodes.framework import (
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
+    from rclpy.timer import Timer
+
 __all__ = ['SysidNode', 'main']
 
 def _validate(values: dict[str, Any]) -> str | None:
     if values['samples'] and values['samples'] > values['max_samples']:
         return 'samples must be 0 or <= max_samples'
-    if values['max_buffered_samples'] < 2 * values['window_size'] * 32:
-        return 'max_buffered_samples cannot hold one window'
+    budget = values['max_buffered_bytes']
+    if budget - budget // 4 < 16 * values['window_size'] * (values['samples'] or 32):
+        return 'max_buffered_bytes cannot hold one window (three quarters of it must)'
+    if budget // 4 < 16 * values['max_samples']:
+        return ('max_buffered_bytes cannot hold a waiting pair of the largest records '
+                '(max_samples; a quarter of it must)')
     if values['samples'] and values['samples'] <= values['na'] + values['nb']:
         return 'records must be longer than na + nb samples'
     return None
@@ -89,13 +95,16 @@ class SysidNode(Node):
                               warnings_per_second=v['warnings_per_second'],
                               model_path=v['model'])
         qos = moves_qos(v['qos_depth'], reliability=v['qos_reliability'])
+        # raw: the serialized bytes; the record's length is read before any sample is decoded
         self.create_subscription(MoveSamples, CURRENT_TOPIC,
-                                 functools.partial(self._on_half, signal='current'), qos)
+                                 functools.partial(self._on_half, signal='current'), qos,
+                                 raw=True)
         self.create_subscription(MoveSamples, ENCODER_TOPIC,
-                                 functools.partial(self._on_half, signal='encoder'), qos)
+                                 functools.partial(self._on_half, signal='encoder'), qos,
+                                 raw=True)
         self.create_timer(0.25, self.task.tick)
-        if v['stats_period'] > 0:
-            self.create_timer(v['stats_period'], self._log_stats)
+        self._stats_timer: Timer | None = None
+        self._stats_every(v['stats_period'])
         self.diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC,
                                                  diagnostics_qos())
         self._reported = self.task.stats()
@@ -125,18 +134,20 @@ class SysidNode(Node):
             self.log.warning(
                 f'window settings changed ({", ".join(sorted(changed))}): {held} buffered '
                 f'moves and {old.pending} unpaired halves discarded')
+        if 'stats_period' in changed:
+            self._stats_every(values['stats_period'])
         if changed & {'method', 'na', 'nb'}:
             self.task.fitter.set_fit(self._fit_function(values))
             self.log.info(f'identification now {values["method"]} '
                           f'(na={values["na"]}, nb={values["nb"]})')
 
-    def _on_half(self, msg: MoveSamples, *, signal: str) -> None:
+    def _on_half(self, raw: bytes, *, signal: str) -> None:
         try:
-            half = move_half_from_msg(msg, signal=signal)
+            msg = read_move_samples(raw)
         except GalvoSysidError as err:
-            self.task.set_aside(str(err))
+            self.task.set_aside(f'{signal}: {one_line(err)}')
             return
-        self.task.add(half)
+        self.task.add_serialized(msg, signal=signal)
 
     def _publish(self, outcome: FitOutcome) -> None:
         w = outcome.window
@@ -160,6 +171,14 @@ class SysidNode(Node):
             f'{r.fit_percent:.1f} %, omega = '
             f'{", ".join(f"{x:.5g}" for x in r.natural_frequencies)} rad/s '
             f'(queued {1e3 * outcome.queued:.0f} ms, fit {1e3 * outcome.fit_time:.0f} ms)')
+
+    def _stats_every(self, period: float) -> None:
+        """Log the counters every ``period`` seconds from now on (0: never)."""
+        if self._stats_timer is not None:
+            self.destroy_timer(self._stats_timer)
+            self._stats_timer = None
+        if period > 0:
+            self._stats_timer = self.create_timer(period, self._log_stats)
 
     def _log_stats(self) -> None:
         s = self.task.stats()

@@ -21,6 +21,7 @@ from galvo_sysid.interfaces.messages import (
     modal_parameters_fields,
     move_half_from_msg,
     move_samples_fields,
+    read_move_samples,
     result_from_msg,
     seconds_to_stamp,
     stamp_to_seconds,
@@ -208,3 +209,79 @@ def test_drift_status_round_trip_and_diagnostics() -> None:
     msg.level = 9
     with pytest.raises(InvalidDataError):
         verdict_from_msg(msg)
+
+
+# -- serialized MoveSamples read before decoding (issue 12, defect 3) --------------------------
+
+def _serialized(n: int, *, frame_id: str = '', seed: int = 0) -> tuple[MoveSamples, bytes]:
+    from rclpy.serialization import serialize_message
+
+    rng = np.random.default_rng(seed)
+    msg = fill(MoveSamples(), move_samples_fields(
+        move_id=int(rng.integers(0, 2**63)), target_angle=float(rng.normal()),
+        sample_period=float(rng.random()), data=rng.normal(size=n)))
+    fill_header(msg, stamp=float(rng.uniform(-2e9, 2e9)), frame_id=frame_id)
+    return msg, serialize_message(msg)
+
+
+def test_read_move_samples_is_exactly_rclpys_decoding() -> None:
+    from rclpy.serialization import deserialize_message
+
+    for seed in range(300):  # lengths and frame_ids that shift every alignment
+        n, pad = seed % 37, seed % 11
+        _, raw = _serialized(n, frame_id='f' * pad, seed=seed)
+        back = move_half_from_msg(deserialize_message(raw, MoveSamples), signal='encoder')
+        read = read_move_samples(raw)
+        assert read.samples == n
+        half = read.half('encoder')
+        assert (half.signal, half.move_id, half.target_angle, half.sample_period,
+                half.stamp) == (back.signal, back.move_id, back.target_angle,
+                                back.sample_period, back.stamp)
+        assert half.data.dtype == np.float64
+        np.testing.assert_array_equal(half.data, back.data)
+        assert half.data.base is None or half.data.base is not raw  # a copy, not a view
+        assert read.header_half('encoder').data.shape == (0,)
+
+
+def test_read_move_samples_in_big_endian_cdr() -> None:
+    import struct
+
+    _, raw = _serialized(3, frame_id='ab', seed=1)
+    little = read_move_samples(raw)
+    # the same message in big-endian CDR, field by field
+    big = bytearray(b'\x00\x00\x00\x00')
+    big += struct.pack('>iI', *seconds_to_stamp(little.stamp)) + struct.pack('>I', 3) + b'ab\x00'
+    big += b'\x00' * ((-(len(big) - 4)) % 8)
+    big += struct.pack('>Qdd', little.move_id, little.target_angle, little.sample_period)
+    big += struct.pack('>I', 3) + b'\x00' * 4 + struct.pack('>3d', *little.half('current').data)
+    read = read_move_samples(bytes(big))
+    assert read.half('current').stamp == little.half('current').stamp
+    np.testing.assert_array_equal(read.half('current').data, little.half('current').data)
+
+
+def test_read_move_samples_knows_the_length_before_decoding() -> None:
+    import struct
+    import tracemalloc
+
+    _, raw = _serialized(64, seed=2)
+    read = read_move_samples(raw)
+    count_at = raw.rfind(struct.pack('<I', 64), 0, read.offset)  # the length, before data
+    assert read.offset - 8 <= count_at <= read.offset - 4
+    # a message claiming 2^31 doubles in 64 doubles' bytes: refused, nothing allocated
+    lying = bytearray(raw)
+    struct.pack_into('<I', lying, count_at, 2**31 - 1)
+    tracemalloc.start()
+    try:
+        with pytest.raises(InvalidDataError, match='runs past the end'):
+            read_move_samples(bytes(lying))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 100_000
+    for bad, match in ((raw[:3], 'too short'), (raw[:20], 'cut short'),
+                       (b'\x00\x07' + raw[2:], 'unsupported CDR'),
+                       (raw[:4] + b'\x00' * 8 + b'\xff\xff\xff\x7f', 'frame_id')):
+        with pytest.raises(InvalidDataError, match=match):
+            read_move_samples(bad)
+    with pytest.raises(InvalidDataError, match='signal'):
+        read.half('torque')

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.monitor.moves import MoveHalf
-from galvo_sysid.monitor.pairing import MoveWindower
+from galvo_sysid.monitor.pairing import CONFIRM, MoveWindower
 from galvo_sysid.monitor.rejections import summarize_rejections
 
 N = 64
@@ -136,12 +136,15 @@ def test_current_and_encoder_of_different_lengths() -> None:
     feed(w, [c, e])
     (r,) = w.pop_rejections()
     assert 'lengths differ' in r.reason
-    # the window fixes N from its first move; a later move of another length is set aside
+    # moves of another length fill a window of their own (no move fixes its angle's length)
     feed(w, [*halves(1), *halves(2, n=2 * N)])
-    (r,) = w.pop_rejections()
-    assert r.move_id == 2
-    assert 'samples' in r.reason
-    assert len(feed(w, list(halves(3)))) == 1
+    assert w.pop_rejections() == []
+    assert w.open_windows == 2
+    (first,) = feed(w, list(halves(3)))
+    assert first.move_ids == (1, 3)
+    (second,) = feed(w, list(halves(4, n=2 * N)))
+    assert second.move_ids == (2, 4)
+    assert second.current.shape == (2, 2 * N)
 
 
 def test_duplicate_move_id() -> None:
@@ -171,31 +174,39 @@ def test_unpaired_half_expires_by_stamp_not_arrival() -> None:
     assert w.pop_rejections() == []
 
 
-def test_time_jumping_back_resets_buffers() -> None:
+def test_time_jumping_back_and_staying_back_restarts_buffers() -> None:
     w = MoveWindower(window_size=4)
     feed(w, [*halves(0, stamp=10.0), *halves(1, stamp=10.006), *halves(2, stamp=10.012)])
     c3, _ = halves(3, stamp=10.018)
     feed(w, [c3])
     assert w.open_windows == 1
-    # replay loops back to the start of the bag: same ids and stamps again
-    windows = feed(w, list(halves(0, stamp=0.5)))
-    assert windows == []
+    # replay loops back to the start of the bag: same ids and stamps again; the first halves
+    # are held apart until CONFIRM of them in a row agree on the new time
+    loop = [h for i in range(4) for h in halves(i, stamp=0.5 + 0.006 * i)]
+    assert len(loop) == CONFIRM
+    assert feed(w, loop[:-1]) == []
+    assert w.resets == 0
+    assert w.held == CONFIRM - 1
+    assert w.pop_rejections() == []
+    windows = feed(w, loop[-1:])
     assert w.resets == 1
     rej = w.pop_rejections()
     assert sorted(r.move_id for r in rej) == [0, 1, 2, 3]
     assert all('time jumped back' in r.reason for r in rej)
-    # afterwards, moves with the same ids are accepted again and no old move mixes in
-    windows = feed(w, [h for i in range(1, 4) for h in halves(i, stamp=0.5 + 0.006 * i)])
+    # the held halves are the new pass: no old move mixes in
     assert len(windows) == 1
+    assert windows[0].move_ids == (0, 1, 2, 3)
     assert windows[0].first_stamp == pytest.approx(0.5)
     assert windows[0].last_stamp == pytest.approx(0.518)
+    assert w.held == 0
 
 
 def test_reused_move_id_long_after_is_a_new_move() -> None:
     w = MoveWindower(window_size=2, pair_timeout=0.5)
     feed(w, [*halves(0, stamp=0.0), *halves(1, stamp=0.01)])
-    windows = feed(w, [*halves(0, stamp=5.0), *halves(1, stamp=5.01)])
-    assert len(windows) == 1
+    later = [h for i in range(4) for h in halves(i, stamp=5.0 + 0.01 * i)]
+    windows = feed(w, later)  # 5 s later: held apart until CONFIRM halves agree, then used
+    assert [x.move_ids for x in windows] == [(0, 1), (2, 3)]
     assert w.pop_rejections() == []
 
 
@@ -221,13 +232,17 @@ def test_memory_bounded_when_encoder_never_comes() -> None:
     assert 'evicted' in rej[0].reason
 
 
-def test_memory_bounded_by_buffered_samples() -> None:
-    w = MoveWindower(window_size=100, max_buffered_samples=2 * 100 * N * 3 // 2,
-                     max_windows=64)
+def test_memory_bounded_by_buffered_bytes() -> None:
+    # windows get three quarters of the budget: here 1.5 windows of 100 moves
+    budget = 4 * 16 * 100 * N // 2
+    w = MoveWindower(window_size=100, max_buffered_bytes=budget, max_windows=64,
+                     max_samples=N)
     for i in range(400):
         feed(w, list(halves(i, angle=0.3 * (1 + i % 4))))
-        assert w.buffered_samples <= 2 * 100 * N * 3 // 2
-    assert any('buffered samples' in r.reason for r in w.pop_rejections())
+        assert 8 * w.buffered_samples <= budget * 3 // 4
+        assert w.buffered_bytes <= budget
+    assert any('bytes in open windows' in r.reason for r in w.pop_rejections())
+    assert w.windows_evicted > 0
 
 
 def test_flush_hands_out_partial_windows_and_rejects_the_rest() -> None:
@@ -247,7 +262,8 @@ def test_flush_hands_out_partial_windows_and_rejects_the_rest() -> None:
 @pytest.mark.parametrize('kwargs', [
     {'window_size': 1}, {'window_size': -5}, {'pair_timeout': 0.0},
     {'pair_timeout': math.nan}, {'time_jump': -1.0}, {'samples': 10},
-    {'min_samples': 0}, {'max_pending': 0}, {'max_buffered_samples': 10},
+    {'min_samples': 0}, {'max_pending': 0}, {'max_buffered_bytes': 10},
+    {'max_buffered_bytes': 100_000, 'max_samples': 10_000}, {'window_timeout': 0.0},
 ])
 def test_bad_configuration(kwargs: dict) -> None:
     with pytest.raises(ConfigurationError):
@@ -285,7 +301,7 @@ half_strategy = st.builds(
 @given(st.lists(half_strategy, max_size=60))
 def test_arbitrary_halves_never_raise_and_stay_bounded(items: list[MoveHalf]) -> None:
     w = MoveWindower(window_size=2, min_samples=4, max_samples=64, max_pending=5, max_windows=3,
-                     max_buffered_samples=2 * 2 * 64 * 3)
+                     max_buffered_bytes=4 * 16 * 64 * 3)
     for h in items:
         for win in w.add(h):
             assert win.current.shape == win.encoder.shape
@@ -296,7 +312,7 @@ def test_arbitrary_halves_never_raise_and_stay_bounded(items: list[MoveHalf]) ->
             assert abs(win.target_angle) > 0
         assert w.pending <= 5
         assert w.open_windows <= 3
-        assert w.buffered_samples <= 2 * 2 * 64 * 3
+        assert w.buffered_bytes <= 4 * 16 * 64 * 3
     for r in w.pop_rejections():
         assert isinstance(r.reason, str)
         assert r.reason
@@ -369,3 +385,169 @@ def test_moves_of_another_sample_period_than_the_models_are_set_aside_once_each(
     assert len(feed(free, [h for i in range(3) for h in halves(i, period=13.3e-6)])) == 1
     with pytest.raises(ConfigurationError, match='sample_period'):
         MoveWindower(sample_period=-1e-5)
+
+
+# -- issue 12: one bad stamp, a short first move, a flood of angles, expiry, byte budget -------
+
+def _stream(moves: int, *, angles: tuple[float, ...] = (0.3, -0.3, 1.5, -1.5), t0: float = 100.0,
+            n: int = N) -> list[MoveHalf]:
+    """Good moves, the angles in turn, stamps advancing (both halves, current first)."""
+    return [h for i in range(moves)
+            for h in halves(i, angles[i % len(angles)], stamp=t0 + i * MOVE_TIME, n=n)]
+
+
+@pytest.mark.parametrize('stamp', [0.0, 1e6, 99.0, 103.0])
+def test_one_stale_stamp_sets_aside_its_half_only(stamp: float) -> None:
+    """Issue 12, defect 4: a half stamped far from the others (every 150th message) used to
+    reset every buffer (0 windows); now only it is set aside, every window completes."""
+    w = MoveWindower(window_size=20)
+    items = _stream(160)
+    bad = []
+    for k, at in enumerate(range(150, len(items), 150)):
+        stale = halves(10**9 + k, 0.3, stamp=stamp)[0]
+        items.insert(at + k, stale)
+        bad.append(stale.move_id)
+    windows = feed(w, items)
+    assert len(windows) == 160 // 20  # every good move in a full window
+    assert sorted(m for x in windows for m in x.move_ids) == list(range(160))
+    rej = w.pop_rejections()
+    assert sorted(r.move_id for r in rej) == bad
+    where = 'behind' if stamp < 100 else 'ahead of'
+    assert {r.reason for r in rej} == {
+        f'stamp more than 1 s {where} the data clock (set aside alone)'}
+    assert w.resets == 0
+    assert w.stale_halves == len(bad)
+    assert w.held == 0
+
+
+def test_a_pair_of_stale_halves_and_a_stale_partner_are_set_aside_once() -> None:
+    w = MoveWindower(window_size=10)
+    items = _stream(40, angles=(0.3,))
+    c, e = halves(500, 0.3, stamp=3.0)  # both halves of one move stamped 97 s early
+    items[20:20] = [c, e]
+    lone_good_partner = halves(501, 0.3, stamp=100.1)[1]
+    items[30:30] = [lone_good_partner, halves(501, 0.3, stamp=2.0)[0]]  # its current: stale
+    windows = feed(w, items)
+    assert len(windows) == 4
+    rej = w.pop_rejections()
+    assert sorted(r.move_id for r in rej) == [500, 501]  # one rejection per move
+    assert w.resets == 0
+    assert w.pending == 0
+
+
+def test_a_stale_flood_interleaved_never_moves_the_clock() -> None:
+    # as many stale halves as good ones, in turn: none is ever CONFIRM in a row
+    w = MoveWindower(window_size=10)
+    items = []
+    for k, h in enumerate(_stream(60, angles=(0.3,))):
+        items.append(h)
+        items.append(halves(10**6 + k, 0.3, stamp=5.0 + 1e-3 * k)[k % 2])
+    windows = feed(w, items)
+    assert [x.moves for x in windows] == [10] * 6
+    assert w.resets == 0
+    assert w.stale_halves == 120 - w.held
+
+
+def test_a_pause_moves_the_clock_forward_without_losing_a_move() -> None:
+    w = MoveWindower(window_size=10)
+    items = _stream(15, angles=(0.3,)) + [
+        h for i in range(15, 30) for h in halves(i, 0.3, stamp=200.0 + i * MOVE_TIME)]
+    windows = feed(w, items)  # 100 s later: held until CONFIRM halves agree, then used
+    assert [x.move_ids for x in windows] == [tuple(range(k, k + 10)) for k in (0, 10, 20)]
+    assert w.pop_rejections() == []
+    assert w.resets == 0
+
+
+def test_short_first_move_does_not_block_its_angle() -> None:
+    """Issue 12, defect 8: a 40-sample first move used to fix its window's length, and the
+    99 good moves of its angle were set aside ("record has 512 samples, the window 40")."""
+    w = MoveWindower(window_size=25, min_samples=32)
+    items = [*halves(10**6, 0.3, stamp=99.0, n=40), *_stream(200, n=512)]
+    windows = feed(w, items)
+    assert sorted(x.target_angle for x in windows) == sorted([0.3, -0.3, 1.5, -1.5] * 2)
+    assert all(x.current.shape == (25, 512) for x in windows)
+    assert w.pop_rejections() == []
+    assert w.fill_levels() == {0.3: 1}  # the short move waits in a window of its own
+    leftovers = w.flush(min_moves=2)
+    assert leftovers == []
+    (r,) = w.pop_rejections()
+    assert r.move_id == 10**6
+    assert 'incomplete at end of data' in r.reason
+
+
+def test_flood_of_distinct_angles_does_not_starve_filling_angles() -> None:
+    """Issue 12, defect 9: 20 moves of distinct target angles per good move used to evict
+    every good window before it completed (0 of 45); windows not filling go first now."""
+    w = MoveWindower(window_size=25, max_windows=64)
+    windows = []
+    flood_id = 10**6
+    for i, h in enumerate(_stream(400)):
+        windows += w.add(h)
+        if i % 2:
+            for _ in range(20):
+                flood_id += 1
+                angle = 0.3 + 1e-3 * (flood_id % 100_000) + 1e-5
+                for f in halves(flood_id, angle, stamp=h.stamp):
+                    windows += w.add(f)
+                assert w.open_windows <= 64
+    good = [x for x in windows if x.target_angle in (0.3, -0.3, 1.5, -1.5)]
+    # 100 moves per angle, the first of each lost to the flood: 3 full windows per angle
+    assert len(good) == len(windows) == 4 * 3
+    assert all(x.moves == 25 for x in good)
+    assert w.fill_levels()[0.3] == 24
+    rej = w.pop_rejections()
+    assert {r.reason for r in rej} == {'window evicted: more than 64 open windows'}
+    assert sorted(r.move_id for r in rej if r.move_id < 10**6) == [0, 1, 2, 3]
+
+
+def test_filling_windows_compete_by_last_progress() -> None:
+    # more filling angles than max_windows: the least recently progressing one goes
+    w = MoveWindower(window_size=10, max_windows=2)
+    feed(w, [*halves(0, 0.3), *halves(1, 0.3), *halves(2, 0.6), *halves(3, 0.6)])
+    # a new angle's first move goes first (not filling yet); when it comes again it fills
+    # and the least recently progressing angle (0.6) goes
+    feed(w, [*halves(4, 0.3), *halves(5, 0.9), *halves(6, 0.9)])
+    assert w.fill_levels() == {0.3: 3, 0.9: 1}
+    assert [r.move_id for r in w.pop_rejections()] == [5, 2, 3]
+
+
+def test_a_window_not_complete_in_time_expires() -> None:
+    w = MoveWindower(window_size=10, window_timeout=0.5)
+    feed(w, [*halves(0, 0.9, stamp=100.0), *halves(1, 0.9, stamp=100.1)])
+    feed(w, [h for i in range(2, 90) for h in halves(i, 0.3, stamp=100.0 + 0.01 * i)])
+    assert 0.9 not in w.fill_levels()
+    assert w.windows_expired == 1
+    expired = [r for r in w.pop_rejections() if 'expired' in r.reason]
+    assert sorted(r.move_id for r in expired) == [0, 1]
+    assert expired[0].reason == 'window expired: not complete 0.5 s after its first move'
+
+
+def test_byte_budget_bounds_waiting_halves_and_windows() -> None:
+    budget = 4 * 16 * 10 * N  # a quarter (40 records of N samples) for halves waiting
+    w = MoveWindower(window_size=10, max_samples=4 * N, max_buffered_bytes=budget,
+                     max_pending=10_000, pair_timeout=1e6)
+    rng = np.random.default_rng(3)
+    for i in range(2000):
+        kind = rng.integers(0, 3)
+        angle = float(rng.choice([0.3, 0.6, 0.9, 1.2, 1.5]))
+        if kind == 0:  # a lone half of the largest size (its partner never comes)
+            w.add(halves(10**6 + i, angle, stamp=100.0 + 1e-4 * i, n=4 * N)[0])
+        else:
+            feed(w, list(halves(i, angle, stamp=100.0 + 1e-4 * i)))
+        assert w.buffered_bytes <= budget
+        assert 16 * N * sum(w.fill_levels().values()) <= budget - budget // 4
+    reasons = {r.reason for r in w.pop_rejections()}
+    assert f'unpaired: evicted, more than {budget // 4} bytes of halves waiting' in reasons
+    assert w.halves_evicted > 0
+
+
+def test_refused_half_is_set_aside_with_its_partner_once() -> None:
+    w = MoveWindower(window_size=2)
+    c, e = halves(7)
+    w.refuse(MoveHalf.create('current', move_id=7, target_angle=0.3, sample_period=DT,
+                             stamp=c.stamp, data=np.zeros(0)), 'current record too long')
+    assert feed(w, [e, *halves(8), *halves(9)])[0].move_ids == (8, 9)
+    (r,) = w.pop_rejections()
+    assert (r.move_id, r.reason) == (7, 'current record too long')
+    assert w.refused_halves == 1
+    assert w.pending == 0

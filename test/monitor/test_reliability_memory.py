@@ -6,7 +6,7 @@
 - a publisher that never sends the encoder half (100,000 current halves), with stamps
   advancing (halves expire after ``pair_timeout``) and with a frozen stamp (the
   ``max_pending`` cap evicts the oldest): pending halves capped, each said once;
-- records of the largest accepted size: ``max_buffered_samples`` caps the samples held;
+- records of the largest accepted size: ``max_buffered_bytes`` caps the bytes held;
 - the real sysid node over DDS flooded with distinct angles and lone current halves: its
   counters stay within the caps, its resident memory does not grow with the flood, evictions
   are logged, and a good window sent afterwards is identified from all its moves.
@@ -136,17 +136,18 @@ def test_encoder_half_never_sent(stamps: str) -> None:
     assert len(w.pop_rejections()) == w.max_pending if stamps == 'frozen' else True
 
 
-def test_largest_records_are_capped_by_buffered_samples() -> None:
+def test_largest_records_are_capped_by_buffered_bytes() -> None:
     big = 65536
-    w = MoveWindower(window_size=100, max_buffered_samples=4 * big * 10)
+    budget = 4 * 16 * big * 10  # open windows: 30 moves of the largest records
+    w = MoveWindower(window_size=100, max_buffered_bytes=budget)
     data = np.zeros(big)
     for i in range(60):
         angle = 0.3 * (1 + i % 3)
         w.add(MoveHalf('current', i, angle, DT, 100.0 + i * 0.7, data))
         w.add(MoveHalf('encoder', i, angle, DT, 100.0 + i * 0.7, data))
-        assert w.buffered_samples <= 4 * big * 10
+        assert w.buffered_bytes <= budget
     reasons = {r.reason for r in w.pop_rejections()}
-    assert any('buffered samples' in r for r in reasons), reasons
+    assert any('bytes in open windows' in r for r in reasons), reasons
 
 
 # -- the real node over DDS --------------------------------------------------------------

@@ -169,3 +169,78 @@ def test_mismatch_message_names_the_model_file_and_the_way_out() -> None:
         'the data do not match model s.yaml: no physical mode 2 in the band; run galvo-sysid '
         'commission')
     assert 'model paper_table1 (packaged)' in mismatch_message('x', model_path='')
+
+
+# -- issue 12, defect 3: sizes checked before decoding -----------------------------------------
+
+class _Serialized:
+    """A half still serialized: its length known, decoding it fails the test."""
+
+    def __init__(self, half: MoveHalf, samples: int) -> None:
+        self._half = half
+        self.samples = samples
+
+    def half(self, signal: str) -> MoveHalf:
+        if self.samples > 64:
+            raise AssertionError('an oversized record was decoded')
+        return self._half
+
+    def header_half(self, signal: str) -> MoveHalf:
+        h = self._half
+        return MoveHalf(signal, h.move_id, h.target_angle, h.sample_period, h.stamp,
+                        np.zeros(0))
+
+
+def test_oversized_serialized_half_is_refused_without_being_decoded() -> None:
+    warnings: list[str] = []
+    done = Collector()
+    done.expected = 1
+    task = SysidTask(lambda w: fake_result(w.target_angle, w.moves), done,
+                     warn=warnings.append, windower={'window_size': 2, 'max_samples': 64})
+    base = np.arange(64.0)
+    try:
+        for mid in range(3):
+            for signal in ('current', 'encoder'):
+                half = MoveHalf(signal, mid, 0.3, 1e-5, 100.0 + 0.01 * mid, base + mid)
+                # move 1's current claims 5,000,000 samples: refused, its encoder dropped
+                samples = 5_000_000 if (mid, signal) == (1, 'current') else 64
+                task.add_serialized(_Serialized(half, samples), signal=signal)
+        assert done.event.wait(10)
+    finally:
+        task.close()
+    assert [o.window.move_ids for o in done.items] == [(0, 2)]
+    stats = task.stats()
+    assert stats['halves_refused'] == 1
+    assert stats['halves_received'] == 6
+    assert stats['moves_rejected'] == 1
+    assert warnings == ['1 move set aside (id 1; 0.3 deg): current record too long '
+                        '(5000000 > 64 samples), refused before decoding']
+
+
+def test_serialized_cdr_of_5m_doubles_is_refused_in_constant_memory() -> None:
+    import tracemalloc
+
+    from galvo_sysid.field.bags.definitions import galvo_typestore
+    from galvo_sysid.interfaces.messages import read_move_samples
+    from galvo_sysid.interfaces.topics import MOVE_SAMPLES
+
+    store = galvo_typestore()
+    types = store.types
+    header = types['std_msgs/msg/Header'](stamp=types['builtin_interfaces/msg/Time'](
+        sec=100, nanosec=0), frame_id='')
+    raw = bytes(store.serialize_cdr(types[MOVE_SAMPLES](
+        header=header, move_id=1, target_angle=0.3, sample_period=1e-5,
+        data=np.full(5_000_000, 0.1)), MOVE_SAMPLES))
+    task = SysidTask(lambda w: fake_result(), lambda o: None, warn=lambda line: None)
+    try:
+        tracemalloc.start()
+        try:
+            task.add_serialized(read_move_samples(raw), signal='current')
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+    finally:
+        task.close()
+    assert peak < 1_000_000  # the 40 MB of samples were never decoded
+    assert task.stats()['halves_refused'] == 1
+    assert task.windower.buffered_bytes == 0
