@@ -187,6 +187,7 @@ def format_identification(found: BagIdentification) -> str:
     lines = [f'bag: {info.path} ({info.storage}), {found.moves:g} moves, {span:.2f} s; '
              f'method {found.method}, windows of {found.window_size} moves; model '
              f'{found.model_name}',
+             *(f'note: {claim}' for claim in info.claims),
              '']
 
     def dev(values: dict[str, float], name: str) -> float:

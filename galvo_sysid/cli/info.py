@@ -15,7 +15,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p = add_subcommand(
         subparsers, 'info', help='show what a bag holds',
         description='Topics, types, message counts and time range of a bag '
-                    '(like ros2 bag info).')
+                    '(like ros2 bag info). The counts are those of the storage files; '
+                    "where the bag's metadata.yaml claims others, a note says so.")
     p.add_argument('bag', help=BAG_HELP)
     return p
 
@@ -40,4 +41,6 @@ def run(args: argparse.Namespace) -> int:
     for t in info.topics:
         latched = ', transient local' if t.transient_local else ''
         print(f'  {t.topic:<{width}}  {t.msgtype}  ({t.count} messages{latched})')
+    for claim in info.claims:  # metadata.yaml is a claim: the storage's counts are shown
+        print(f'note: {claim}')
     return 0

@@ -23,7 +23,27 @@ if TYPE_CHECKING:
 
     from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['MoveSet', 'read_moves']
+__all__ = ['MAX_SAMPLE_MAGNITUDE', 'MoveSet', 'implausible_samples', 'read_moves']
+
+MAX_SAMPLE_MAGNITUDE = 1e6
+"""Largest magnitude of a sample taken as a measurement: current [A], encoder angle [deg].
+
+A galvano scanner's currents stay below 100 A and its angles within +-30 deg; a record beyond
+this is corrupt or rescaled (1e300-scaled records overflowed the comparison's spectra into a
+LinAlgError). Such a move is set aside with the reason, the others are used."""
+
+
+def implausible_samples(current: ArrayLike, encoder: ArrayLike) -> str | None:
+    """Why a move's records are no measurement (NaN/Inf, or beyond
+    :data:`MAX_SAMPLE_MAGNITUDE`), or None."""  # noqa: D205, D209
+    for name, values in (('current', current), ('encoder', encoder)):
+        x = np.asarray(values, dtype=float)
+        if not np.all(np.isfinite(x)):
+            return f'NaN or Inf in {name}'
+        if x.size and float(np.max(np.abs(x))) > MAX_SAMPLE_MAGNITUDE:
+            return (f'{name} reaches {float(np.max(np.abs(x))):.3g}, beyond '
+                    f'+-{MAX_SAMPLE_MAGNITUDE:g}: no measurement of a scanner')
+    return None
 
 
 @dataclass(frozen=True)
@@ -55,7 +75,8 @@ class MoveSet:
         """Check and build a move set.
 
         Raises:
-            InvalidDataError: Wrong shapes, NaN/Inf, fewer than 4 samples, zero angles.
+            InvalidDataError: Wrong shapes, NaN/Inf or samples beyond
+                :data:`MAX_SAMPLE_MAGNITUDE`, fewer than 16 samples, zero angles.
             ConfigurationError: Bad sample period.
         """
         cur = np.atleast_2d(np.asarray(current, dtype=float))
@@ -66,8 +87,9 @@ class MoveSet:
                 f'{enc.shape}')
         if cur.shape[1] < 16:
             raise InvalidDataError(f'records need at least 16 samples, got {cur.shape[1]}')
-        if not (np.all(np.isfinite(cur)) and np.all(np.isfinite(enc))):
-            raise InvalidDataError('current or encoder contains NaN or Inf')
+        why = implausible_samples(cur, enc)
+        if why is not None:
+            raise InvalidDataError(f'moves cannot be compared: {why}')
         angles = np.broadcast_to(np.asarray(target_angle, dtype=float), (cur.shape[0],)).copy()
         if not np.all(np.isfinite(angles)) or np.any(angles == 0):
             raise InvalidDataError('target angles must be finite and non-zero')
@@ -163,9 +185,12 @@ def read_moves(bag: str | os.PathLike[str], *, namespace: str | None = None,
     windows = []
     stamps: dict[int, float] = {}
     with BagReader(bag) as reader:
-        for item in reader.move_halves(namespace=namespace):
+        for item in reader.move_halves(namespace=namespace, max_samples=windower.max_samples):
             if isinstance(item, SetAside):
-                rejected.append(item.to_dict())
+                if item.half is not None:  # refused before decoding: its move set aside
+                    windower.refuse(item.half, item.reason)
+                else:
+                    rejected.append(item.to_dict())
             else:
                 if item.signal == 'current':
                     stamps[int(item.move_id)] = float(item.stamp)
@@ -175,14 +200,35 @@ def read_moves(bag: str | os.PathLike[str], *, namespace: str | None = None,
     rejected.extend(rejection_to_dict(r) for r in windower.pop_rejections())
     if not windows:
         raise InvalidDataError(f'no usable move in {bag}')
-    lengths = {w.current.shape[1] for w in windows}
-    periods = {w.sample_period for w in windows}
-    if len(lengths) != 1 or len(periods) != 1:
-        raise InvalidDataError(f'{bag}: moves differ in record length {sorted(lengths)} or '
-                               f'sample period {sorted(periods)}')
+    # one record length and sample period: the most common (by moves); the rest set aside
+    shares: dict[tuple[int, float], int] = {}
+    for w in windows:
+        shape = (w.current.shape[1], w.sample_period)
+        shares[shape] = shares.get(shape, 0) + w.moves
+    (length, period), _ = max(shares.items(), key=lambda kv: kv[1])
+    for w in windows:
+        if (w.current.shape[1], w.sample_period) != (length, period):
+            rejected.extend({'move_id': int(mid), 'target_angle': w.target_angle,
+                             'stamp': stamps.get(int(mid)),
+                             'reason': f'record of {w.current.shape[1]} samples at '
+                                       f'{w.sample_period:g} s, most moves have {length} at '
+                                       f'{period:g} s'}
+                            for mid in w.move_ids)
+    windows = [w for w in windows if (w.current.shape[1], w.sample_period) == (length, period)]
+    # a move whose samples no scanner measures (corrupt, rescaled) is set aside, alone
+    usable: dict[int, list[int]] = {}
+    for w in windows:
+        usable[id(w)] = []
+        for row, mid in enumerate(w.move_ids):
+            why = implausible_samples(w.current[row], w.encoder[row])
+            if why is None:
+                usable[id(w)].append(row)
+            else:
+                rejected.append({'move_id': int(mid), 'target_angle': w.target_angle,
+                                 'stamp': stamps.get(int(mid)), 'reason': why})
     counts: dict[float, int] = {}
     for w in windows:
-        counts[w.target_angle] = counts.get(w.target_angle, 0) + len(w.move_ids)
+        counts[w.target_angle] = counts.get(w.target_angle, 0) + len(usable[id(w)])
     cur, enc, ang, ids = [], [], [], []
     taken: dict[float, int] = {}
     for w in sorted(windows, key=lambda w: w.first_stamp):
@@ -191,9 +237,10 @@ def read_moves(bag: str | os.PathLike[str], *, namespace: str | None = None,
                              'stamp': stamps.get(int(mid)),
                              'reason': f'only {counts[w.target_angle]} move(s) of this target '
                                        f'angle (a noise floor needs {min_moves})'}
-                            for mid in w.move_ids)
+                            for mid in (w.move_ids[row] for row in usable[id(w)]))
             continue
-        for row, mid in enumerate(w.move_ids):
+        for row in usable[id(w)]:
+            mid = w.move_ids[row]
             n = taken.get(w.target_angle, 0)
             if max_moves_per_angle is not None and n >= max_moves_per_angle:
                 continue
@@ -207,7 +254,7 @@ def read_moves(bag: str | os.PathLike[str], *, namespace: str | None = None,
     order = np.argsort(ids, kind='stable')
     id_arr = np.array(ids)[order]
     return MoveSet.create(np.array(cur)[order], np.array(enc)[order], np.array(ang)[order],
-                          sample_period=periods.pop(), move_id=id_arr,
+                          sample_period=period, move_id=id_arr,
                           stamp=[stamps.get(int(i), math.nan) for i in id_arr]), rejected
 
 

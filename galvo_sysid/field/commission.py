@@ -84,9 +84,12 @@ def _windows(bag: str | os.PathLike[str], *, namespace: str | None,
     windows: list[Window] = []
     rejected = 0
     with BagReader(bag) as reader:
-        for item in reader.move_halves(namespace=namespace):
+        for item in reader.move_halves(namespace=namespace, max_samples=pairer.max_samples):
             if isinstance(item, SetAside):
-                rejected += 1
+                if item.half is not None:  # refused before decoding: its move set aside
+                    pairer.refuse(item.half, item.reason)
+                else:
+                    rejected += 1
             else:
                 windows.extend(pairer.add(item))
             rejected += len(pairer.pop_rejections())

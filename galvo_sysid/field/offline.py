@@ -538,9 +538,13 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
             info = reader.info
             total = sum(t.count for t in info.topics if t.topic in {current, encoder})
             done = 0  # messages read (what the report counts, not what the bag claims)
-            for done, item in enumerate(reader.move_halves(namespace=namespace), start=1):
+            halves = reader.move_halves(namespace=namespace, max_samples=pairer.max_samples)
+            for done, item in enumerate(halves, start=1):
                 if isinstance(item, SetAside):
-                    rejected.append(item.to_dict())
+                    if item.half is not None:  # refused before decoding: its move set aside
+                        pairer.refuse(item.half, item.reason)
+                    else:
+                        rejected.append(item.to_dict())
                 else:
                     for window in pairer.add(item):
                         submit(window)

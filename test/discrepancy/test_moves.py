@@ -29,3 +29,27 @@ def test_angles_with_too_few_moves_are_set_aside(tmp_path):
     assert 'noise floor needs 3' in rejected[0]['reason']
     with pytest.raises(InvalidDataError, match='no target angle has 9'):
         read_moves(path, min_moves=9)
+
+
+def test_a_minority_record_length_is_set_aside(tmp_path):
+    # issue 12, defect 8: a short first move made the whole bag unreadable ("moves differ in
+    # record length [40, 512]")
+    from dataclasses import replace
+
+    from galvo_sysid.field.bags import CURRENT_TOPIC, ENCODER_TOPIC, BagWriter
+    from galvo_sysid.field.simulate import write_moves
+    from galvo_sysid.interfaces.topics import MOVE_SAMPLES
+    from galvo_sysid.sim.simulator import GalvoSimulator
+
+    moves = list(GalvoSimulator(seed=2).moves(angles=[0.3], moves_per_angle=10))
+    moves[0] = replace(moves[0], current=moves[0].current[:40], encoder=moves[0].encoder[:40])
+    path = tmp_path / 'short_first'
+    with BagWriter(path) as bag:
+        bag.add_topic(CURRENT_TOPIC, MOVE_SAMPLES)
+        bag.add_topic(ENCODER_TOPIC, MOVE_SAMPLES)
+        write_moves(bag, moves)
+    found, rejected = read_moves(path)
+    assert found.moves == 9
+    assert found.samples == len(moves[1].current)
+    assert [r['move_id'] for r in rejected] == [0]
+    assert rejected[0]['reason'].startswith('record of 40 samples at 1e-05 s, most moves have')

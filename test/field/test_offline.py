@@ -391,3 +391,57 @@ def test_a_window_far_worse_than_the_others_is_left_out_of_the_pool(bag: Path,
 def _halves(bag: Path) -> list[Any]:
     with BagReader(bag) as reader:
         return [h for h in reader.move_halves() if not isinstance(h, SetAside)]
+
+
+def _written(dst: Path, halves: list[Any]) -> Path:
+    """A bag of these halves, logged in this order."""
+    from galvo_sysid.field.bags import CURRENT_TOPIC, ENCODER_TOPIC, BagWriter
+    from galvo_sysid.interfaces.topics import MOVE_SAMPLES
+
+    with BagWriter(dst) as out:
+        for topic in (CURRENT_TOPIC, ENCODER_TOPIC):
+            out.add_topic(topic, MOVE_SAMPLES)
+        for i, h in enumerate(halves):
+            msg = out.move_samples(stamp=h.stamp, move_id=h.move_id, target_angle=h.target_angle,
+                                   sample_period=h.sample_period, data=h.data)
+            out.write(CURRENT_TOPIC if h.signal == 'current' else ENCODER_TOPIC, i * 1000, msg)
+    return dst
+
+
+def test_stale_stamped_halves_cost_no_window(bag: Path, tmp_path: Path) -> None:
+    # issue 12, defect 4: 5 lone halves stamped 0 s among 800 messages stamped from 100 s used
+    # to reset every buffer (0 of 4 windows)
+    from dataclasses import replace
+
+    halves = _halves(bag)
+    clean = identify_bag(bag, method='paper-A')
+    mixed = []
+    for i, h in enumerate(halves):
+        mixed.append(replace(h, stamp=h.stamp + 100.0))
+        if i % 150 == 149:
+            mixed.append(replace(halves[0], move_id=10**9 + i, stamp=0.0))
+    found = identify_bag(_written(tmp_path / 'stale', mixed), method='paper-A')
+    assert len(clean.windows) == 4
+    assert [w.result.moves for w in found.windows] == [w.result.moves for w in clean.windows]
+    assert sorted(r['move_id'] for r in found.rejected) == [10**9 + i for i in
+                                                           range(149, len(halves), 150)]
+    assert {r['reason'] for r in found.rejected} == {
+        'stamp more than 1 s behind the data clock (set aside alone)'}
+
+
+def test_a_short_first_move_does_not_block_its_angle(bag: Path, tmp_path: Path) -> None:
+    # issue 12, defect 8: a 40-sample first move fixed its window's length; the other 99
+    # moves of its angle were set aside ("record has 512 samples, the window 40")
+    from dataclasses import replace
+
+    halves = [replace(h, data=h.data[:40]) if h.move_id == 0 else h for h in _halves(bag)]
+    found = identify_bag(_written(tmp_path / 'short', halves), method='paper-A')
+    first = halves[0].target_angle
+    assert sorted(w.target_angle for w in found.windows) == sorted({h.target_angle
+                                                                    for h in halves})
+    (window,) = [w for w in found.windows if w.target_angle == first]
+    assert window.result.moves == 99
+    assert window.partial
+    (r,) = found.rejected
+    assert r['move_id'] == 0
+    assert 'incomplete at end of data' in r['reason']

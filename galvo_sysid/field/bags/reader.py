@@ -8,6 +8,13 @@ Reading::
 
 Messages are decoded with the definitions stored in the bag; a bag without them is decoded
 with :func:`~galvo_sysid.field.bags.definitions.galvo_typestore`.
+
+Before a library opens anything, a bag's ``metadata.yaml`` is read strictly
+(:func:`~galvo_sysid.field.bags.metadata.read_metadata`) and every storage file must be a
+regular file (a FIFO named ``run.mcap`` would block the reader forever). The message counts
+and time range of :attr:`BagReader.info` are the storage files' own (sqlite3 counts its rows,
+mcap its statistics or its records); where ``metadata.yaml`` claims otherwise,
+:attr:`BagInfo.claims` says so.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ from galvo_sysid.field.bags.errors import (
     WrongTopicTypeError,
     reason,
 )
+from galvo_sysid.field.bags.metadata import BagMetadata, check_storage_files, read_metadata
 from galvo_sysid.field.bags.recovery import check_complete
 from galvo_sysid.interfaces.topics import MOVE_SAMPLES, SIGNAL_TOPICS
 
@@ -70,14 +78,23 @@ class SetAside:
         topic: Topic it came on.
         timestamp: Log time [s].
         reason: Short human text.
+        half: For a record refused before decoding (too long): its fields as a
+            :class:`~galvo_sysid.monitor.moves.MoveHalf` without samples, so that its move
+            can be set aside as one (:meth:`~galvo_sysid.monitor.pairing.MoveWindower.refuse`);
+            else None.
     """
 
     topic: str
     timestamp: float
     reason: str
+    half: MoveHalf | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form, same keys as a windower rejection plus ``topic``."""
+        h = self.half
+        if h is not None:
+            return {'move_id': h.move_id, 'target_angle': h.target_angle, 'stamp': h.stamp,
+                    'reason': self.reason, 'topic': self.topic}
         return {'move_id': None, 'target_angle': None, 'stamp': self.timestamp,
                 'reason': self.reason, 'topic': self.topic}
 
@@ -110,6 +127,8 @@ class BagInfo:
         message_count: Total number of messages.
         start: Log time of the first message [ns] (0 for an empty bag).
         end: Log time of the last message [ns] (0 for an empty bag).
+        claims: Where the bag's ``metadata.yaml`` disagrees with its storage files (one line
+            each; the counts and times above are the storage files'), else empty.
     """
 
     path: Path
@@ -118,6 +137,7 @@ class BagInfo:
     message_count: int
     start: int
     end: int
+    claims: tuple[str, ...] = ()
 
 
 def _explain(err: BaseException) -> str:
@@ -152,6 +172,7 @@ class BagReader(BagFile):
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
         self._reader: AnyReader | None = None
+        self._metadata: BagMetadata | None = None
 
     def open(self) -> None:
         """Open the bag (see the class for the errors)."""
@@ -167,9 +188,12 @@ class BagReader(BagFile):
                 msg = f'not a rosbag2 bag (no metadata.yaml): {self.path}'
                 raise CorruptBagError(msg)
             self.path = storage_files[0]
-        if self.path.is_file() and self.path.suffix not in {'.mcap', '.db3'}:
+        if not self.path.is_dir() and self.path.suffix not in {'.mcap', '.db3'}:
             msg = f'not a rosbag2 bag (expected a directory, .mcap or .db3): {self.path}'
             raise CorruptBagError(msg)
+        # strictly, before rosbags trusts it; then no FIFO, device or socket gets opened
+        self._metadata = read_metadata(self.path) if self.path.is_dir() else None
+        check_storage_files(self.path, self._metadata)
         try:
             try:
                 reader = AnyReader([self.path])
@@ -205,7 +229,12 @@ class BagReader(BagFile):
 
     @property
     def info(self) -> BagInfo:
-        """Topics, counts and time range."""
+        """Topics, counts and time range, as the storage files hold them.
+
+        A bag directory's ``metadata.yaml`` only claims its counts: they are checked against
+        the storage files (their own index or rows), which are shown; a disagreement is said
+        in :attr:`BagInfo.claims`.
+        """
         reader = self.reader
         topics: dict[str, TopicInfo] = {}
         for conn in reader.connections:
@@ -214,11 +243,22 @@ class BagReader(BagFile):
             topics[conn.topic] = TopicInfo(conn.topic, conn.msgtype, count,
                                            _transient_local(conn) or bool(old and
                                                                           old.transient_local))
+        start, end = reader.start_time, reader.end_time
+        claims: list[str] = []
+        held = _storage_counts(reader)
+        if held is not None:
+            counts, start, end = held
+            for name, t in sorted(topics.items()):
+                if counts.get(name, 0) != t.count:
+                    claims.append(f'metadata.yaml claims {t.count} messages on {name}, the '
+                                  f'storage holds {counts.get(name, 0)} (shown)')
+                    topics[name] = TopicInfo(t.topic, t.msgtype, counts.get(name, 0),
+                                             t.transient_local)
         count = sum(t.count for t in topics.values())
         return BagInfo(path=self.path, storage=_storage_of(self.path),
                        topics=tuple(topics[k] for k in sorted(topics)), message_count=count,
-                       start=reader.start_time if count else 0,
-                       end=reader.end_time - 1 if count else 0)
+                       start=start if count else 0, end=end - 1 if count else 0,
+                       claims=tuple(claims))
 
     def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
         """Yield the stored messages in log-time order (all topics, or only ``topics``).
@@ -300,21 +340,36 @@ class BagReader(BagFile):
                 raise WrongTopicTypeError(msg)
         return found['current'], found['encoder']
 
-    def move_halves(self, *, namespace: str | None = None) -> Iterator[MoveHalf | SetAside]:
+    def move_halves(self, *, namespace: str | None = None,
+                    max_samples: int | None = None) -> Iterator[MoveHalf | SetAside]:
         """Yield each ``MoveSamples`` message as a :class:`~galvo_sysid.monitor.moves.MoveHalf`.
 
         A message that cannot be decoded or converted is yielded as :class:`SetAside`
-        instead; reading goes on.
+        instead; reading goes on. With ``max_samples``, a record longer than that is refused
+        before its samples are decoded (its length is read from the serialized bytes): a
+        :class:`SetAside` carrying the record's fields.
 
         Raises:
             NoGalvoTopicsError, WrongTopicTypeError, CorruptBagError: see
                 :meth:`galvo_topics` and :meth:`raw_messages`.
         """
-        from galvo_sysid.interfaces.messages import move_half_from_msg
+        from galvo_sysid.interfaces.messages import move_half_from_msg, read_move_samples
+        from galvo_sysid.monitor.moves import too_long
 
         current, encoder = self.galvo_topics(namespace=namespace)
         signals = {current: 'current', encoder: 'encoder'}
         for raw in self.raw_messages([current, encoder]):
+            if max_samples is not None:
+                try:
+                    head = read_move_samples(raw.data)
+                except GalvoSysidError:
+                    head = None  # not plain CDR: decoded below, or set aside with the reason
+                if head is not None and head.samples > max_samples:
+                    signal = signals[raw.topic]
+                    yield SetAside(raw.topic, raw.timestamp * 1e-9,
+                                   too_long(signal, head.samples, max_samples),
+                                   half=head.header_half(signal))
+                    continue
             try:
                 msg = self.deserialize(raw)
                 half = move_half_from_msg(msg, signal=signals[raw.topic])
@@ -322,6 +377,28 @@ class BagReader(BagFile):
                 yield SetAside(raw.topic, raw.timestamp * 1e-9, reason(err))
                 continue
             yield half
+
+
+def _storage_counts(reader: AnyReader) -> tuple[dict[str, int], int, int] | None:
+    """Messages per topic, first and (one past the) last log time, as the storage files of
+    bag directories hold them (``metadata.yaml`` only claims its counts); None if the bag
+    has no ``metadata.yaml`` (the counts already are the storage's) or rosbags' internals
+    are not as expected."""  # noqa: D205, D209
+    counts: dict[str, int] = {}
+    start, end = 2**63 - 1, 0
+    found = False
+    for bag in getattr(reader, 'readers', ()):
+        storages = getattr(getattr(bag, 'storage', None), 'storages', None)
+        if storages is None:  # a bare storage file: its counts are its own
+            return None
+        found = True
+        for storage in storages:
+            for conn in getattr(storage, 'connections', ()):
+                counts[conn.topic] = counts.get(conn.topic, 0) + int(conn.msgcount)
+            meta = getattr(storage, 'metadata', None)
+            if meta is not None and meta.message_count:
+                start, end = min(start, int(meta.start_time)), max(end, int(meta.end_time))
+    return (counts, start, end) if found else None
 
 
 def _transient_local(conn: Connection) -> bool:
