@@ -20,13 +20,11 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
+from netns import Hosts, cannot_create_namespaces, ip
 from ros_graph import Proc
 
 from galvo_sysid.model import REFERENCE_MODEL
@@ -37,66 +35,7 @@ WINDOW = 20
 _WINDOW_LINE = re.compile(r'window (\d+): ([+-][\d.]+) deg, (\d+) moves, .*omega = ([\d.e+]+),')
 
 
-def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(['ip', *args], capture_output=True, text=True, timeout=20,
-                          check=check)
-
-
-class Hosts:
-    """Two network namespaces joined by a veth pair; removed by ``close``."""
-
-    def __init__(self) -> None:
-        k = os.getpid() % 250 + 1
-        self.names = (f'galvo_host_a_{os.getpid()}', f'galvo_host_b_{os.getpid()}')
-        self.links = (f'gva{os.getpid() % 100000}', f'gvb{os.getpid() % 100000}')
-        self.addresses = (f'10.200.{k}.1', f'10.200.{k}.2')
-        self.created: list[str] = []
-
-    def create(self) -> None:
-        for ns in self.names:
-            _ip('netns', 'add', ns)
-            self.created.append(ns)
-        a, b = self.links
-        _ip('link', 'add', a, 'type', 'veth', 'peer', 'name', b)
-        for ns, link, addr in zip(self.names, self.links, self.addresses, strict=True):
-            _ip('link', 'set', link, 'netns', ns)
-            _ip('-n', ns, 'addr', 'add', f'{addr}/30', 'dev', link)
-            _ip('-n', ns, 'link', 'set', 'lo', 'up')
-            _ip('-n', ns, 'link', 'set', link, 'up')
-            # bounded traffic: shape the link (tc is optional; without it the test still runs)
-            if shutil.which('tc'):
-                subprocess.run(['ip', 'netns', 'exec', ns, 'tc', 'qdisc', 'add', 'dev', link,
-                                'root', 'tbf', 'rate', '50mbit', 'burst', '256kb',
-                                'latency', '200ms'], capture_output=True, timeout=20,
-                               check=False)
-
-    def tx_bytes(self, which: int) -> int:
-        out = _ip('-n', self.names[which], '-s', 'link', 'show', self.links[which]).stdout
-        lines = out.splitlines()
-        i = next(j for j, line in enumerate(lines) if line.strip().startswith('TX:'))
-        return int(lines[i + 1].split()[0])
-
-    def close(self) -> None:
-        for ns in self.created:
-            _ip('netns', 'del', ns, check=False)
-
-
-def _cannot_create_namespaces() -> str | None:
-    if sys.platform != 'linux':
-        return 'network namespaces are Linux only'
-    if os.geteuid() != 0:
-        return 'creating network namespaces needs root (CAP_NET_ADMIN)'
-    if shutil.which('ip') is None:
-        return "the 'ip' command (iproute2) is not installed"
-    probe = f'galvo_probe_{os.getpid()}'
-    result = _ip('netns', 'add', probe, check=False)
-    if result.returncode != 0:
-        return f'ip netns add failed: {result.stderr.strip()}'
-    _ip('netns', 'del', probe, check=False)
-    return None
-
-
-SKIP = _cannot_create_namespaces()
+SKIP = cannot_create_namespaces()
 
 
 @pytest.mark.skipif(SKIP is not None, reason=SKIP or '')
@@ -161,4 +100,4 @@ def test_driver_on_one_host_sysid_and_watchdog_on_another(discovery: str, venv_b
         for p in procs:
             p.stop()
         hosts.close()
-    assert not any(ns in _ip('netns', 'list').stdout for ns in hosts.names)
+    assert not any(ns in ip('netns', 'list').stdout for ns in hosts.names)
