@@ -127,3 +127,29 @@ def test_simulate_limits_are_the_drivers() -> None:
     from galvo_sysid.field.simulate import schedule_limits
 
     assert schedule_limits() == LIMITS
+
+
+# ------------------------------------------------------------------ model files for discrepancy
+
+_BOMB = 'description:\n' + ''.join(
+    f'  - &a{i} [{",".join([f"*a{i - 1}" if i else chr(34) + "lol" + chr(34)] * 10)}]\n'
+    for i in range(9))
+
+
+@pytest.mark.parametrize(('name', 'body', 'needles'), [
+    ('eff_res_mild', MODEL_HEAD + 'effects:\n- {effect: unmodeled_resonance, parameters: '
+     '{natural_frequency: 5.0e4, damping_ratio: 0.01, residue: 1.0e200}}\n',
+     ('effects[1]: unmodeled_resonance: residue must be', '1e+200')),
+    ('bigdelay', MODEL_HEAD + 'input_dynamics: {computation_delay: 100000000}\n',
+     ('computation_delay must be within', '100000000')),
+    ('bomb_description', MODEL_HEAD + _BOMB, ('aliases are not allowed',)),
+])
+def test_discrepancy_refuses_hostile_model_files(tmp_path: Path, name: str, body: str,
+                                                 needles: tuple[str, ...]) -> None:
+    """Repro 07's --model files, end to end: one line naming the file and the value, within a
+    1 GiB address space (the alias bomb would expand to gigabytes; the delay allocated 60 GiB)."""
+    path = tmp_path / f'{name}.yaml'
+    path.write_text(body)
+    proc = run('discrepancy', NOMINAL, '--max-moves-per-angle', '20', '--model', path,
+               memory=1 << 30)
+    assert_error_line(proc, 'discrepancy', str(path), *needles)
