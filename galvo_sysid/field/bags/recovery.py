@@ -36,17 +36,15 @@ from galvo_sysid.field.bags.errors import (
     IncompleteBagError,
     reason,
 )
-from galvo_sysid.field.bags.storage import (
+from galvo_sysid.field.bags.mcap_records import (
     MCAP_MAGIC,
     ChunkRecord,
     McapChannel,
     McapSchema,
-    McapStorage,
-    StoredTopic,
-    bag_metadata,
     index_records,
-    metadata_text,
 )
+from galvo_sysid.field.bags.metadata import StoredTopic, bag_metadata, metadata_text
+from galvo_sysid.field.bags.storage_mcap import McapStorage
 from galvo_sysid.field.bags.writer import LOCK_NAME, RECORDING_KEY, RecordingLock
 from galvo_sysid.schema import load_yaml
 
