@@ -22,6 +22,7 @@ from rosbags.interfaces import ConnectionExtRosbag2, QosDurability
 
 from galvo_sysid.errors import GalvoSysidError
 from galvo_sysid.field.bags.base import BagFile
+from galvo_sysid.field.bags.completeness import check_complete
 from galvo_sysid.field.bags.definitions import galvo_typestore
 from galvo_sysid.field.bags.errors import (
     BagError,
@@ -31,7 +32,6 @@ from galvo_sysid.field.bags.errors import (
     WrongTopicTypeError,
     reason,
 )
-from galvo_sysid.field.bags.recovery import check_complete
 from galvo_sysid.interfaces.topics import MOVE_SAMPLES, SIGNAL_TOPICS
 
 if TYPE_CHECKING:
