@@ -7,7 +7,7 @@ unknown key added; the text cut or garbled):
 - plant-model files (:func:`~galvo_sysid.model.files.load_model`, what ``--model`` and the
   nodes' ``model`` parameter read);
 - node parameter files (``--sysid-params`` / ``--watchdog-params``, read by
-  :func:`~galvo_sysid.field.offline.load_node_parameters`);
+  :func:`~galvo_sysid.field.parameter_file.load_node_parameters`);
 - a bag's ``metadata.yaml`` (:class:`~galvo_sysid.field.bags.reader.BagReader`: open, info and
   every move half read).
 
@@ -33,7 +33,7 @@ from hypothesis import strategies as st
 
 from galvo_sysid.errors import GalvoSysidError
 from galvo_sysid.field.bags.reader import BagReader
-from galvo_sysid.field.offline import load_node_parameters
+from galvo_sysid.field.parameter_file import load_node_parameters
 from galvo_sysid.model.files import load_model, model_from_dict, model_to_dict
 from galvo_sysid.model.paper import PAPER_MODEL
 from galvo_sysid.sim.family import random_scanner

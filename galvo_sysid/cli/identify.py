@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 from galvo_sysid.cli.common import BAG_HELP, Progress, add_subcommand, positive, print_json
 
 if TYPE_CHECKING:
-    from galvo_sysid.field.offline import BagIdentification
+    from galvo_sysid.field.results import BagIdentification
 
 __all__ = ['add_parser', 'format_identification', 'run']
 
@@ -64,7 +64,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument('bag', help=BAG_HELP)
     p.add_argument('--json', action='store_true', help='print one JSON object on stdout')
     # The choices and defaults below are galvo_sysid.ident.identify.METHODS,
-    # galvo_sysid.field.offline.POOLINGS and defaults('sysid') of galvo_sysid.monitor.parameters
+    # galvo_sysid.field.pooling.POOLINGS and defaults('sysid') of galvo_sysid.monitor.parameters
     # written out (test/cli/test_cli.py checks them): importing those modules here would load
     # numpy and scipy for every subcommand's parser (half a second of start-up for `info`).
     p.add_argument('--method', choices=('refined', 'paper-A', 'paper-B'), default=None,
@@ -111,7 +111,9 @@ def run(args: argparse.Namespace) -> int:
     Raises:
         GalvoSysidError: Bad bag, model or parameter file (the caller prints one line).
     """
-    from galvo_sysid.field.offline import identify_bag, job_limit, load_node_parameters
+    from galvo_sysid.field.jobs import job_limit
+    from galvo_sysid.field.offline import identify_bag
+    from galvo_sysid.field.parameter_file import load_node_parameters
     from galvo_sysid.monitor.reference import monitor_from_parameters
 
     if args.plot:  # say a bad file name before the work, not after

@@ -177,7 +177,7 @@ def read_moves(bag: str | os.PathLike[str], *, namespace: str | None = None,
         InvalidDataError: No usable move.
     """
     from galvo_sysid.field.bags import BagReader, SetAside
-    from galvo_sysid.field.offline import rejection_to_dict
+    from galvo_sysid.field.results import rejection_to_dict
     from galvo_sysid.monitor.pairing import MoveWindower
 
     windower = MoveWindower(window_size=1000)

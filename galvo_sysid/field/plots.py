@@ -28,7 +28,7 @@ if TYPE_CHECKING:
 
     from numpy.typing import NDArray
 
-    from galvo_sysid.field.offline import BagIdentification, WindowResult
+    from galvo_sysid.field.results import BagIdentification, WindowResult
 
 __all__ = [
     'LEVEL_COLORS',

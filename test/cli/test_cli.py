@@ -342,7 +342,7 @@ def test_identify_and_commission_options_are_the_sysid_node_s() -> None:
     import sys
 
     from galvo_sysid.cli.main import build_parser
-    from galvo_sysid.field.offline import POOLINGS
+    from galvo_sysid.field.pooling import POOLINGS
     from galvo_sysid.ident.identify import METHODS
     from galvo_sysid.monitor.parameters import defaults
 

@@ -97,7 +97,7 @@ def test_inverse_variance_pooling_and_the_fallback(bag: Path, monkeypatch: pytes
 
 
 def test_joint_windows_stay_spread_over_the_angles() -> None:
-    from galvo_sysid.field.offline import _keep
+    from galvo_sysid.field.pooling import _keep
     from galvo_sysid.monitor.moves import Window
 
     def window(index: int, angle: float, moves: int = 5) -> Window:
@@ -205,7 +205,7 @@ def test_defaults_are_the_nodes_defaults() -> None:
 
 
 def test_parameter_files(tmp_path: Path, repo: Path) -> None:
-    from galvo_sysid.field.offline import load_node_parameters
+    from galvo_sysid.field.parameter_file import load_node_parameters
     from galvo_sysid.model import PAPER_MODEL, REFERENCE_MODEL, ModalModel, save_model
     from galvo_sysid.monitor.reference import monitor_from_parameters
 

@@ -1,5 +1,5 @@
-"""galvo_sysid.field.offline: node parameter files read strictly, fit processes capped
-(issue 12: defects 13 and 14, `identify --jobs 40`)."""
+"""galvo_sysid.field.parameter_file, field.jobs: node parameter files read strictly, fit
+processes capped (issue 12: defects 13 and 14, `identify --jobs 40`)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.field.offline import identify_bag, load_node_parameters
+from galvo_sysid.field.offline import identify_bag
+from galvo_sysid.field.parameter_file import load_node_parameters
 
 BAGS = Path(__file__).resolve().parents[2] / 'bags'
 
@@ -84,7 +85,7 @@ def test_bad_layout_is_one_error_line(tmp_path: Path, text: str) -> None:
 
 
 def test_job_limit_is_the_cpus_at_most() -> None:
-    from galvo_sysid.field.offline import job_limit
+    from galvo_sysid.field.jobs import job_limit
 
     limit, why = job_limit()
     assert 1 <= limit <= len(os.sched_getaffinity(0))

@@ -1,5 +1,5 @@
-"""Bags that survive a crash and a full disk (issue 12, defect 5): field/bags/storage.py,
-the recording mode of writer.py and recovery.py, without ROS.
+"""Bags that survive a crash and a full disk (issue 12, defect 5): field/bags/storage_mcap.py,
+storage_sqlite3.py, the recording mode of writer.py, completeness.py and recovery.py, without ROS.
 
 A recording's writer is killed (SIGKILL, no clean-up runs), cut at random bytes, damaged or
 starved of disk space; what was written before must stay readable after
@@ -30,8 +30,9 @@ from galvo_sysid.field.bags import (
     CorruptBagError,
     IncompleteBagError,
 )
-from galvo_sysid.field.bags import storage as storage_module
-from galvo_sysid.field.bags.recovery import check_complete, recover
+from galvo_sysid.field.bags import storage_mcap as storage_module
+from galvo_sysid.field.bags.completeness import check_complete
+from galvo_sysid.field.bags.recovery import recover
 from galvo_sysid.field.bags.writer import LOCK_NAME
 from galvo_sysid.interfaces.topics import MOVE_SAMPLES
 

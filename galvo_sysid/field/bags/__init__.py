@@ -6,7 +6,13 @@ message definitions of every topic, so any rosbag2 reader (``ros2 bag``, rosbags
 
 - :mod:`~galvo_sysid.field.bags.reader`: :class:`BagReader`, :class:`BagInfo`,
   :class:`SetAside` (a message that could not be used);
-- :mod:`~galvo_sysid.field.bags.writer`: :class:`BagWriter`;
+- :mod:`~galvo_sysid.field.bags.writer`: :class:`BagWriter`, with the crash-safe storages of
+  :mod:`~galvo_sysid.field.bags.storage_mcap` and :mod:`~galvo_sysid.field.bags.storage_sqlite3`
+  (records: :mod:`~galvo_sysid.field.bags.mcap_records`; ``metadata.yaml``:
+  :mod:`~galvo_sysid.field.bags.metadata`);
+- :mod:`~galvo_sysid.field.bags.completeness` (a bag whose recording was interrupted, told
+  apart), :mod:`~galvo_sysid.field.bags.recovery` (made readable again; its mcap scan:
+  :mod:`~galvo_sysid.field.bags.mcap_scan`);
 - :mod:`~galvo_sysid.field.bags.definitions`: the galvo topics as bags name them (absolute),
   the ``.msg`` definitions and the rosbags typestore (the topic and type names themselves are
   :mod:`galvo_sysid.interfaces.topics`);

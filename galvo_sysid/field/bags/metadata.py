@@ -1,4 +1,4 @@
-"""A bag's ``metadata.yaml``, read strictly before any library trusts it.
+"""A bag's ``metadata.yaml``: read strictly before any library trusts it, and written.
 
 rosbag2 describes a bag directory in ``metadata.yaml``: its storage files, its topics and
 how many messages each holds. It is a claim, written by whoever made the bag, and read here
@@ -8,13 +8,20 @@ are refused at every level, every value has its type and a bounded size, every s
 is a plain name in the bag's directory. The message counts it claims are not shown as fact:
 :class:`~galvo_sysid.field.bags.reader.BagReader` takes the counts from the storage files and
 says where ``metadata.yaml`` disagrees.
+
+Written: :func:`bag_metadata` builds its content from what a storage has durably written (used
+while recording, :mod:`galvo_sysid.field.bags.writer`, and by the recovery,
+:mod:`galvo_sysid.field.bags.recovery`); :func:`metadata_text` is its text.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any
+
+import yaml  # type: ignore[import-untyped]  # PyYAML ships no stubs here
+from rosbags.rosbag2.metadata import dump_qos_v9
 
 from galvo_sysid.errors import ConfigurationError, InvalidDataError, one_line
 from galvo_sysid.field.bags.errors import CorruptBagError
@@ -22,9 +29,12 @@ from galvo_sysid.schema import Section, check_regular_file, load_yaml, parse_yam
 
 if TYPE_CHECKING:
     import os
+    from collections.abc import Mapping, Sequence
 
-__all__ = ['MAX_FILES', 'MAX_TOPICS', 'BagMetadata', 'ClaimedTopic', 'check_storage_files',
-           'read_metadata']
+    from rosbags.interfaces import Qos
+
+__all__ = ['MAX_FILES', 'MAX_TOPICS', 'BagMetadata', 'ClaimedTopic', 'StoredTopic',
+           'bag_metadata', 'check_storage_files', 'metadata_text', 'read_metadata']
 
 MAX_TOPICS = 10_000
 """Most topics a ``metadata.yaml`` may list."""
@@ -211,3 +221,64 @@ def _qos(value: Any, where: str) -> None:
                 qos.data['avoid_ros_namespace_conventions'], bool):
             raise ConfigurationError(f'{qos.where}: avoid_ros_namespace_conventions must be '
                                      f'true or false')
+
+
+# --------------------------------------------------------------------------- writing
+
+
+@dataclass(frozen=True)
+class StoredTopic:
+    """A topic as ``metadata.yaml`` describes it."""
+
+    name: str
+    msgtype: str
+    count: int
+    qos: list[Qos] = field(default_factory=list)
+    digest: str = ''
+    serialization_format: str = 'cdr'
+
+
+def bag_metadata(*, storage: str, file_name: str, topics: Sequence[StoredTopic],
+                 span: tuple[int, int] | None, custom: Mapping[str, str] | None = None,
+                 compression: str = '') -> dict[str, Any]:
+    """The ``rosbag2_bagfile_information`` of ``metadata.yaml`` (rosbag2 version 9).
+
+    Args:
+        storage: ``'mcap'`` or ``'sqlite3'``.
+        file_name: The storage file's name.
+        topics: The topics with their message counts.
+        span: Log times of the first and last message [ns] (None: no message).
+        custom: ``custom_data`` entries.
+        compression: ``compression_format`` (``''``: none, or per mcap chunk).
+    """
+    count = sum(t.count for t in topics)
+    start, end = span if span is not None and count else (0, 0)
+    duration = max(0, end - start)
+    return {
+        'version': 9,
+        'storage_identifier': storage,
+        'relative_file_paths': [file_name],
+        'duration': {'nanoseconds': duration},
+        'starting_time': {'nanoseconds_since_epoch': start},
+        'message_count': count,
+        'topics_with_message_count': [
+            {'topic_metadata': {'name': t.name, 'type': t.msgtype,
+                                'serialization_format': t.serialization_format,
+                                'offered_qos_profiles': dump_qos_v9(list(t.qos)),
+                                'type_description_hash': t.digest},
+             'message_count': t.count}
+            for t in topics],
+        'compression_format': compression,
+        'compression_mode': '',
+        'files': [{'path': file_name, 'starting_time': {'nanoseconds_since_epoch': start},
+                   'duration': {'nanoseconds': duration}, 'message_count': count}],
+        'custom_data': dict(custom) if custom else None,
+        'ros_distro': 'rosbags',
+    }
+
+
+def metadata_text(info: Mapping[str, Any], *, inner: bool = False) -> str:
+    """``metadata.yaml``'s text (``inner``: without the top key, as stored in the file)."""
+    data = info if inner else {'rosbag2_bagfile_information': info}
+    text: str = yaml.safe_dump(data, default_flow_style=False, sort_keys=False)
+    return text

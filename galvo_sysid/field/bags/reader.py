@@ -29,6 +29,7 @@ from rosbags.interfaces import ConnectionExtRosbag2, QosDurability
 
 from galvo_sysid.errors import GalvoSysidError
 from galvo_sysid.field.bags.base import BagFile
+from galvo_sysid.field.bags.completeness import check_complete
 from galvo_sysid.field.bags.definitions import galvo_typestore
 from galvo_sysid.field.bags.errors import (
     BagError,
@@ -39,7 +40,6 @@ from galvo_sysid.field.bags.errors import (
     reason,
 )
 from galvo_sysid.field.bags.metadata import BagMetadata, check_storage_files, read_metadata
-from galvo_sysid.field.bags.recovery import check_complete
 from galvo_sysid.interfaces.topics import MOVE_SAMPLES, SIGNAL_TOPICS
 
 if TYPE_CHECKING:

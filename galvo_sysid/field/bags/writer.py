@@ -7,11 +7,12 @@ Writing::
         bag.write_raw(CURRENT_TOPIC, timestamp_ns, cdr_bytes)
 
 A recording (``flush_interval`` set) survives a crash and a full disk: messages reach the
-file at least every ``flush_interval`` seconds (:mod:`galvo_sysid.field.bags.storage`), an
-interim ``metadata.yaml`` marked as an unfinished recording is kept up to date (atomically)
-so that readers say the bag is incomplete and ``galvo-sysid bag recover`` can finish it, and
-a locked reserve file in the bag holds the disk space that closing the bag needs. On a
-failed write (:class:`BagWriteError`) the bag is closed with everything written before.
+file at least every ``flush_interval`` seconds (:mod:`galvo_sysid.field.bags.storage_mcap`,
+:mod:`galvo_sysid.field.bags.storage_sqlite3`), an interim ``metadata.yaml`` marked as an
+unfinished recording is kept up to date (atomically) so that readers say the bag is
+incomplete and ``galvo-sysid bag recover`` can finish it, and a locked reserve file in the
+bag holds the disk space that closing the bag needs. On a failed write
+(:class:`BagWriteError`) the bag is closed with everything written before.
 """
 
 from __future__ import annotations
@@ -41,13 +42,9 @@ from rosbags.rosbag2 import (
 from galvo_sysid.field.bags.base import BagFile
 from galvo_sysid.field.bags.definitions import ensure_type, galvo_typestore, split_type, stamp_to_ns
 from galvo_sysid.field.bags.errors import BagError, BagExistsError, BagWriteError, reason
-from galvo_sysid.field.bags.storage import (
-    McapStorage,
-    Sqlite3Storage,
-    StoredTopic,
-    bag_metadata,
-    metadata_text,
-)
+from galvo_sysid.field.bags.metadata import StoredTopic, bag_metadata, metadata_text
+from galvo_sysid.field.bags.storage_mcap import McapStorage
+from galvo_sysid.field.bags.storage_sqlite3 import Sqlite3Storage
 from galvo_sysid.interfaces.topics import MOVE_SAMPLES
 
 if TYPE_CHECKING:
@@ -85,7 +82,7 @@ def _qos(*, reliable: bool, transient_local: bool, depth: int) -> Qos:
 
 
 class _Writer(Writer):
-    """rosbags' writer with the storages of :mod:`galvo_sysid.field.bags.storage`."""
+    """rosbags' writer with the crash-safe McapStorage and Sqlite3Storage."""
 
     STORAGE_PLUGINS = {StoragePlugin.SQLITE3: Sqlite3Storage,  # noqa: RUF012
                        StoragePlugin.MCAP: McapStorage}

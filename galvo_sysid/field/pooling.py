@@ -1,0 +1,108 @@
+"""The pooled estimate of a bag's windows: one joint fit, or the inverse-variance combination.
+
+The windows held for the joint fit (at most :data:`JOINT_WINDOWS`, spread over the target
+angles), the poor fits left out of the pool, and the fallback to the inverse-variance
+combination (:func:`~galvo_sysid.ident.pool.pool_results`) when the joint fit
+(:func:`~galvo_sysid.ident.identify.identify_joint`) cannot be made; see
+:mod:`galvo_sysid.field.offline`.
+"""
+
+from __future__ import annotations
+
+import collections
+from typing import TYPE_CHECKING
+
+from galvo_sysid.errors import GalvoSysidError, one_line
+
+if TYPE_CHECKING:
+    from galvo_sysid.field.results import WindowResult
+    from galvo_sysid.ident.result import IdentificationResult
+    from galvo_sysid.model import PlantModel
+    from galvo_sysid.monitor.moves import Window
+
+__all__ = ['JOINT_WINDOWS', 'POOLINGS']
+
+POOLINGS = ('joint', 'inverse-variance')
+"""Pooled estimates: one joint fit to the windows (refined method only), or the
+inverse-variance combination of the windows' results."""
+
+JOINT_WINDOWS = 64
+"""Windows held for the joint fit at most (about 0.8 MB each for 100 moves of 512 samples)."""
+
+
+def _keep(kept: list[Window], window: Window, *, limit: int) -> None:
+    """Hold ``window`` for the joint fit, at most ``limit`` windows in all.
+
+    Beyond the limit, the oldest window of the signed target angle holding the most windows
+    goes, so the held windows stay spread over the angles (each excites the modes its own
+    way).
+    """
+    if window.moves < 3:  # the joint fit needs 3 moves per window
+        return
+    kept.append(window)
+    if len(kept) > limit:
+        counts = collections.Counter(w.target_angle for w in kept)
+        most = max(counts.values())
+        drop = next(i for i, w in enumerate(kept) if counts[w.target_angle] == most)
+        del kept[drop]
+
+
+def _pooled(windows: list[WindowResult], kept: list[Window], *, pooling: str,
+            model: PlantModel) -> tuple[IdentificationResult | None, str, str | None, int]:
+    """(pooled estimate, pooling used, note, windows pooled) of the identified windows.
+
+    A window whose fit is far below the others' (more than 10 points and 5 robust standard
+    deviations under their median) fits its data much worse than the same model fits the
+    rest: it is left out of the pool, and the note says which.
+    """
+    from galvo_sysid.ident.identify import identify_joint
+    from galvo_sysid.ident.pool import pool_results
+
+    outliers = _poor_fits(windows)
+    results = [w.result for w in windows if w.window_index not in outliers]
+    kept = [w for w in kept if w.index not in outliers]
+    left_out = None
+    if outliers:
+        left_out = ("left out of the pool for a fit far below the others': " + ', '.join(
+            f'window {i} ({fit:.1f} %)' for i, fit in sorted(outliers.items())))
+    # the combination of the windows is a good start: the joint fit starts from it as it is
+    if not results:
+        return None, '', left_out, 0
+    combined = pool_results(results)
+    if pooling != 'joint':
+        return combined, 'inverse-variance', left_out, len(results)
+    periods = {w.sample_period for w in kept}
+    if len(periods) != 1:
+        reason = 'windows of different sample periods' if periods else \
+            'no window of 3 moves or more'
+        return (combined, 'inverse-variance', _notes(f'joint fit not made ({reason})', left_out),
+                len(results))
+    try:
+        joint = identify_joint([(w.current, w.encoder) for w in kept],
+                               sample_period=periods.pop(), initial=combined,
+                               target_angle=combined.target_angle, keep_initial_damping=True,
+                               model=model)
+    except GalvoSysidError as err:
+        return (combined, 'inverse-variance',
+                _notes(f'joint fit failed: {one_line(err)}', left_out), len(results))
+    return joint, 'joint', left_out, len(kept)
+
+
+def _notes(*notes: str | None) -> str | None:
+    text = '; '.join(n for n in notes if n)
+    return text or None
+
+
+def _poor_fits(windows: list[WindowResult]) -> dict[int, float]:
+    """Windows whose fit is far below the others' (see :func:`_pooled`), with their fit."""
+    import numpy as np
+
+    fits = np.array([w.result.fit_percent for w in windows], dtype=float)
+    ok = np.isfinite(fits)
+    if np.count_nonzero(ok) < 3:
+        return {}
+    median = float(np.median(fits[ok]))
+    spread = 1.4826 * float(np.median(np.abs(fits[ok] - median)))
+    limit = median - max(10.0, 5.0 * spread)
+    return {w.window_index: float(f) for w, f in zip(windows, fits, strict=True)
+            if not f >= limit}
