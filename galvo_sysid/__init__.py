@@ -7,14 +7,18 @@ the ROS 2 nodes live in :mod:`galvo_sysid.nodes`; the command-line tool in
 
 Importing the package changes nothing in the process (no environment variables); the entry
 points call :func:`limit_blas_threads` before numpy is imported (``galvo-sysid`` in its main,
-the nodes in :mod:`galvo_sysid.nodes`, which their modules import first).
+the nodes in :mod:`galvo_sysid.nodes`, which their modules import first), and
+:func:`bounded_dds_memory` before rclpy starts (the nodes, and the live tools of
+:mod:`galvo_sysid.field.live`).
 """
 
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
-__all__ = ['BLAS_THREAD_VARIABLES', '__version__', 'limit_blas_threads']
+__all__ = ['BLAS_THREAD_VARIABLES', 'FASTDDS_DEFAULTS', '__version__', 'bounded_dds_memory',
+           'limit_blas_threads']
 
 __version__ = '0.1.0'
 
@@ -32,3 +36,28 @@ def limit_blas_threads() -> None:
     """
     for name in BLAS_THREAD_VARIABLES:
         os.environ.setdefault(name, '1')
+
+
+FASTDDS_DEFAULTS = Path(__file__).with_name('data') / 'fastdds_defaults.xml'
+"""Fast DDS profile of galvo_sysid's processes: readers free each sample's buffer."""
+
+
+def bounded_dds_memory() -> None:
+    """Make Fast DDS readers free received buffers, unless the user configured Fast DDS.
+
+    rmw_fastrtps keeps every pooled receive buffer at the size of the largest message that
+    ever used it, so a flood of oversized messages holds up to ``qos_depth`` times the largest
+    message even though the sysid node refuses them before decoding (1.9 GiB after 30 s of
+    40 MB records). :data:`FASTDDS_DEFAULTS` gives readers DYNAMIC history memory; this points
+    Fast DDS to it (``FASTRTPS_DEFAULT_PROFILES_FILE``, ``RMW_FASTRTPS_USE_QOS_FROM_XML=1``).
+    A user who set either variable, or another RMW, keeps their own configuration: their
+    profile should then give readers DYNAMIC memory too (``config/fastdds_localhost.xml``
+    does). Call before rclpy starts; Fast DDS reads the variables once.
+    """
+    if os.environ.get('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp') not in ('', 'rmw_fastrtps_cpp'):
+        return
+    if 'FASTRTPS_DEFAULT_PROFILES_FILE' in os.environ or \
+            'RMW_FASTRTPS_USE_QOS_FROM_XML' in os.environ:
+        return
+    os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(FASTDDS_DEFAULTS)
+    os.environ['RMW_FASTRTPS_USE_QOS_FROM_XML'] = '1'

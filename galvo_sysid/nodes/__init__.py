@@ -10,8 +10,13 @@ imports this package first, so the call here comes before any node module import
 Importing :mod:`galvo_sysid.nodes` (or a node module) therefore sets
 :data:`galvo_sysid.BLAS_THREAD_VARIABLES` that are not set yet; importing the rest of
 galvo_sysid changes nothing in the process.
+
+Likewise it calls :func:`galvo_sysid.bounded_dds_memory` before rclpy starts: unless the user
+configured Fast DDS, readers free each received buffer (an oversized message no longer keeps
+its size in the DDS receive pool).
 """
 
-from galvo_sysid import limit_blas_threads
+from galvo_sysid import bounded_dds_memory, limit_blas_threads
 
 limit_blas_threads()  # before the node modules import numpy
+bounded_dds_memory()  # before rclpy creates a participant

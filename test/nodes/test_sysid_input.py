@@ -10,8 +10,13 @@
   of one sign, more than ``max_windows``) no longer starve the good windows: each sign
   loses its first move only, the flood's windows are evicted and counted.
 
-The load cases (5M-double pairs, 2,000 distinct angles/s for a minute, memory measured) are
-``benchmarks/sysid_hostile_input.py``.
+- Defect 3 below the node: ten pairs of 36 MB records, refused before decoding, leave no
+  memory behind in the DDS receive buffers (the reader history's DYNAMIC memory of
+  :func:`galvo_sysid.bounded_dds_memory`; rmw_fastrtps' own default kept about 30 MB per
+  such message for good).
+
+The load cases (5M-double pairs at 1/s and 2,000 distinct angles/s for 30 s, memory measured)
+are ``benchmarks/sysid_hostile_input.py``.
 """
 
 from __future__ import annotations
@@ -20,7 +25,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from galvo_sysid_msgs.msg import ModalParameters, MoveSamples
-from ros_graph import MOVES_QOS, RESULTS_QOS, Graph, counters, move_message, wait_matched
+from ros_graph import (
+    MOVES_QOS,
+    RESULTS_QOS,
+    Graph,
+    counters,
+    move_message,
+    rss_kib,
+    wait_matched,
+)
 
 from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields
 from galvo_sysid.model import REFERENCE_MODEL
@@ -146,3 +159,47 @@ def test_a_flood_of_distinct_angles_leaves_filling_windows_complete(graph: Graph
     assert 'window evicted: more than 64 open windows' in log
     assert sysid.running
     assert 'Traceback' not in log
+
+
+def test_an_oversized_flood_leaves_no_memory_behind(graph: Graph) -> None:
+    ns = '/input_oversized_memory'
+    results, pubs, sysid = _setup(graph, ns)
+    moves = list(GalvoSimulator(seed=23).moves(angles=[0.9], moves_per_angle=40))
+    t0 = 600.0
+    for move in moves[:4]:  # the node at work before the baseline
+        _pair(pubs, move, t0)
+    graph.spin_until(lambda: _settled(sysid, 8), 30, 'the first moves counted')
+    baseline = rss_kib(sysid.pid)
+    # 4.5M doubles (36 MB) a half: above glibc's largest mmap threshold (32 MB), so a freed
+    # buffer goes back to the system and what stays resident is what something still holds
+    huge = {s: _half(s, move_id=0, angle=0.9, stamp=t0, data=np.full(4_500_000, 0.1))
+            for s in ('current', 'encoder')}
+    # the attacker's own writers (a writer's samples arrive in order: behind 36 MB of
+    # fragments on the driver's own writer, good halves would wait whatever the node does)
+    attacker = {s: graph.node.create_publisher(MoveSamples, f'{ns}/galvo/{s}', MOVES_QOS)
+                for s in ('current', 'encoder')}
+    wait_matched(graph, attacker.values())
+    peak = baseline
+    for i, move in enumerate(moves[4:]):
+        _pair(pubs, move, t0)
+        if i % 3 == 0 and i < 30:
+            for s, msg in huge.items():
+                msg.move_id = 10**6 + i
+                fill_header(msg, stamp=t0 + move.stamp)
+                attacker[s].publish(msg)
+        graph.spin_for(0.05)
+        peak = max(peak, rss_kib(sysid.pid))
+    total = 2 * len(moves) + 20
+    graph.spin_until(lambda: len(results) >= 4 and _settled(sysid, total), 90,
+                     'the good windows and every half counted')
+    graph.spin_for(1.0)
+    settled = rss_kib(sysid.pid)
+    print(f'sysid RSS: baseline {baseline / 1024:.0f} MiB, peak {peak / 1024:.0f} MiB, '
+          f'settled {settled / 1024:.0f} MiB after 20 halves of 36 MB')
+    c = counters(sysid.text())[-1]
+    assert c['halves_refused'] == 20
+    assert sorted(m.target_angle for m in results) == [-0.9, -0.9, 0.9, 0.9]
+    assert all(m.moves == 10 for m in results)
+    # 720 MB were sent; the old receive pool kept about 30 MB of each (600 MB)
+    assert settled - baseline < 100 * 1024, (baseline, peak, settled)
+    assert sysid.running

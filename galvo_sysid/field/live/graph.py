@@ -86,6 +86,9 @@ def ros_node(name: str) -> Iterator[Node]:
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
+    from galvo_sysid import bounded_dds_memory
+
+    bounded_dds_memory()  # before the participant exists: record takes whatever is sent
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
