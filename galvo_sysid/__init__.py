@@ -57,7 +57,7 @@ def bounded_dds_memory() -> None:
     if os.environ.get('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp') not in ('', 'rmw_fastrtps_cpp'):
         return
     if 'FASTRTPS_DEFAULT_PROFILES_FILE' in os.environ or \
-            'RMW_FASTRTPS_USE_QOS_FROM_XML' in os.environ:
+            'RMW_FASTRTPS_USE_QOS_FROM_XML' in os.environ or not FASTDDS_DEFAULTS.is_file():
         return
     os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(FASTDDS_DEFAULTS)
     os.environ['RMW_FASTRTPS_USE_QOS_FROM_XML'] = '1'

@@ -55,3 +55,35 @@ def test_starting_a_node_limits_blas_unless_the_user_set_it() -> None:
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                          check=True, timeout=60, env=env).stdout.splitlines()
     assert out[-1] == "['1', '2', '1']"
+
+
+def test_starting_a_node_bounds_dds_memory_unless_the_user_configured_fast_dds() -> None:
+    """galvo_sysid.nodes points Fast DDS to the packaged reader defaults (DYNAMIC memory)."""
+    import os
+    import subprocess
+    import sys
+    import xml.etree.ElementTree as ET
+
+    from galvo_sysid import FASTDDS_DEFAULTS
+
+    names = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'RMW_FASTRTPS_USE_QOS_FROM_XML',
+             'RMW_IMPLEMENTATION')
+    code = ('import os\n'
+            'import galvo_sysid.nodes\n'
+            f'print([os.environ.get(v) for v in {names[:2]!r}])\n')
+    base = {k: v for k, v in os.environ.items() if k not in names}
+
+    def run(**extra: str) -> str:
+        return subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                              check=True, timeout=60, env={**base, **extra}).stdout.strip()
+
+    assert run() == repr([str(FASTDDS_DEFAULTS), '1'])
+    assert run(FASTRTPS_DEFAULT_PROFILES_FILE='/mine.xml') == "['/mine.xml', None]"
+    assert run(RMW_FASTRTPS_USE_QOS_FROM_XML='0') == "[None, '0']"
+    assert run(RMW_IMPLEMENTATION='rmw_cyclonedds_cpp') == '[None, None]'
+    # the packaged file is installed with the package and says what the docs say
+    ns = {'d': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
+    reader = ET.parse(FASTDDS_DEFAULTS).getroot().find('d:profiles/d:data_reader', ns)
+    assert reader is not None
+    assert reader.get('is_default_profile') == 'true'
+    assert reader.findtext('d:historyMemoryPolicy', namespaces=ns) == 'DYNAMIC'
