@@ -176,7 +176,7 @@ def read_moves(bag: str | os.PathLike[str], *, namespace: str | None = None,
         BagError: Missing, corrupt or unreadable bag.
         InvalidDataError: No usable move.
     """
-    from galvo_sysid.field.bags import BagReader, SetAside
+    from galvo_sysid.field.bags import BagReader
     from galvo_sysid.field.results import rejection_to_dict
     from galvo_sysid.monitor.pairing import MoveWindower
 
@@ -185,16 +185,12 @@ def read_moves(bag: str | os.PathLike[str], *, namespace: str | None = None,
     windows = []
     stamps: dict[int, float] = {}
     with BagReader(bag) as reader:
-        for item in reader.move_halves(namespace=namespace, max_samples=windower.max_samples):
-            if isinstance(item, SetAside):
-                if item.half is not None:  # refused before decoding: its move set aside
-                    windower.refuse(item.half, item.reason)
-                else:
-                    rejected.append(item.to_dict())
-            else:
-                if item.signal == 'current':
-                    stamps[int(item.move_id)] = float(item.stamp)
-                windows.extend(windower.add(item))
+        for half, completed, unread in reader.feed(windower, namespace=namespace):
+            if unread is not None:
+                rejected.append(unread.to_dict())
+            if half is not None and half.signal == 'current':
+                stamps[int(half.move_id)] = float(half.stamp)
+            windows.extend(completed)
             rejected.extend(rejection_to_dict(r) for r in windower.pop_rejections())
     windows.extend(windower.flush(min_moves=1))
     rejected.extend(rejection_to_dict(r) for r in windower.pop_rejections())

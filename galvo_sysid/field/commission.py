@@ -77,21 +77,16 @@ class BagCommissioning:
 
 def _windows(bag: str | os.PathLike[str], *, namespace: str | None,
              window_size: int) -> tuple[list[Window], int]:
-    from galvo_sysid.field.bags import BagReader, SetAside
+    from galvo_sysid.field.bags import BagReader
     from galvo_sysid.monitor.pairing import MoveWindower
 
     pairer = MoveWindower(window_size=window_size)
     windows: list[Window] = []
     rejected = 0
     with BagReader(bag) as reader:
-        for item in reader.move_halves(namespace=namespace, max_samples=pairer.max_samples):
-            if isinstance(item, SetAside):
-                if item.half is not None:  # refused before decoding: its move set aside
-                    pairer.refuse(item.half, item.reason)
-                else:
-                    rejected += 1
-            else:
-                windows.extend(pairer.add(item))
+        for _, completed, unread in reader.feed(pairer, namespace=namespace):
+            rejected += int(unread is not None)
+            windows.extend(completed)
             rejected += len(pairer.pop_rejections())
     windows.extend(pairer.flush(min_moves=max(3, window_size // 2)))
     rejected += len(pairer.pop_rejections())

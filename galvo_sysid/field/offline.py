@@ -33,7 +33,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError, one_line
-from galvo_sysid.field.bags import BagReader, SetAside
+from galvo_sysid.field.bags import BagReader
 from galvo_sysid.field.jobs import job_limit
 from galvo_sysid.field.pooling import JOINT_WINDOWS, POOLINGS, _keep, _pooled
 from galvo_sysid.field.results import (
@@ -196,16 +196,12 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
             info = reader.info
             total = sum(t.count for t in info.topics if t.topic in {current, encoder})
             done = 0  # messages read (what the report counts, not what the bag claims)
-            halves = reader.move_halves(namespace=namespace, max_samples=pairer.max_samples)
-            for done, item in enumerate(halves, start=1):
-                if isinstance(item, SetAside):
-                    if item.half is not None:  # refused before decoding: its move set aside
-                        pairer.refuse(item.half, item.reason)
-                    else:
-                        rejected.append(item.to_dict())
-                else:
-                    for window in pairer.add(item):
-                        submit(window)
+            for done, (_, completed, unread) in enumerate(
+                    reader.feed(pairer, namespace=namespace), start=1):
+                if unread is not None:
+                    rejected.append(unread.to_dict())
+                for window in completed:
+                    submit(window)
                 rejected.extend(rejection_to_dict(r) for r in pairer.pop_rejections())
                 if progress is not None:
                     progress(done, total)

@@ -48,7 +48,8 @@ if TYPE_CHECKING:
 
     from rosbags.interfaces import Connection
 
-    from galvo_sysid.monitor.moves import MoveHalf
+    from galvo_sysid.monitor.moves import MoveHalf, Window
+    from galvo_sysid.monitor.pairing import MoveWindower
 
 __all__ = ['BagInfo', 'BagReader', 'RawMessage', 'SetAside', 'TopicInfo']
 
@@ -377,6 +378,30 @@ class BagReader(BagFile):
                 yield SetAside(raw.topic, raw.timestamp * 1e-9, reason(err))
                 continue
             yield half
+
+    def feed(self, windower: MoveWindower, *, namespace: str | None = None
+             ) -> Iterator[tuple[MoveHalf | None, list[Window], SetAside | None]]:
+        """Feed every move half of the bag to ``windower``, message by message.
+
+        Records longer than ``windower.max_samples`` are refused before decoding and set
+        aside by the windower as their move (:meth:`MoveWindower.refuse`).
+
+        Yields:
+            Per message: the half taken (None if it was not), the windows it completed, and
+            the message if it could not be read at all (else None).
+
+        Raises:
+            NoGalvoTopicsError, WrongTopicTypeError, CorruptBagError: as
+                :meth:`move_halves`.
+        """
+        for item in self.move_halves(namespace=namespace, max_samples=windower.max_samples):
+            if not isinstance(item, SetAside):
+                yield item, windower.add(item), None
+            elif item.half is not None:  # refused before decoding: its move set aside
+                windower.refuse(item.half, item.reason)
+                yield None, [], None
+            else:
+                yield None, [], item
 
 
 def _storage_counts(reader: AnyReader) -> tuple[dict[str, int], int, int] | None:
