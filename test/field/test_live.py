@@ -257,7 +257,11 @@ def test_echo_and_record_wait_for_a_publisher(venv_bin: Path, tmp_path: Path) ->
                                'record')
         procs['echo'] = Proc([cli, 'echo', '/latched_test', '--once', '--json'], tmp_path,
                              'echo')
-        time.sleep(5.0)  # both have seen the topic, from the listener only
+        # both have seen the topic, from the listener only (no publisher, so no QoS yet)
+        wait_for(lambda: 'has subscribers only' in procs['record'].stderr, 30,
+                 'the recorder to see the topic without a publisher')
+        wait_for(lambda: '(it has subscribers only)' in procs['echo'].stderr, 30,
+                 'echo to see the topic without a publisher')
         # the message is published at once, before the new publisher is matched with anyone:
         # only transient-local subscriptions get it
         procs['publisher'] = Proc([sys.executable, '-c', LATCHED_PUBLISHER], tmp_path, 'pub')

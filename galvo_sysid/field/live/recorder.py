@@ -102,6 +102,8 @@ def record(out: str | os.PathLike[str], *, topics: Sequence[str] = GALVO_TOPICS,
                         writer.write_raw(topic, clock.now().nanoseconds, data)
                 return callback
 
+            waiting: set[str] = set()
+
             def discover() -> None:
                 for topic, types in node.get_topic_names_and_types():
                     if topic in summary.types:
@@ -115,6 +117,10 @@ def record(out: str | os.PathLike[str], *, topics: Sequence[str] = GALVO_TOPICS,
                     msgtype = types[0]
                     offered = publisher_qos(node, topic)
                     if offered is None:  # known from a subscriber only: wait for a publisher
+                        if topic not in waiting:
+                            say(log, f'record: {topic} has subscribers only: waiting for a '
+                                     f'publisher (its QoS)')
+                            waiting.add(topic)
                         continue
                     reliable, transient = offered
                     try:

@@ -51,7 +51,7 @@ def echo(topic: str, *, once: bool = False, as_json: bool = False,
     with Stop() as stop, ros_node('galvo_sysid_echo') as node:
         msgtype = None
         offered = None
-        said = False
+        said: set[str] = set()  # the waiting lines said (each once)
         while not stop.is_set():
             types = dict(node.get_topic_names_and_types()).get(name)
             offered = publisher_qos(node, name) if types else None
@@ -62,9 +62,12 @@ def echo(topic: str, *, once: bool = False, as_json: bool = False,
             if timeout is not None and elapsed > timeout:
                 say(log, f'echo: topic {name} did not appear within {timeout:g} s')
                 return 1
-            if not said and elapsed > 1.0:
+            if types and 'subscribers' not in said:
+                say(log, f'echo: waiting for a publisher on {name} (it has subscribers only)...')
+                said.add('subscribers')
+            elif not said and elapsed > 1.0:
                 say(log, f'echo: waiting for a publisher on {name}...')
-                said = True
+                said.add('publisher')
             time.sleep(0.1)
         if msgtype is None or offered is None:
             return 0
