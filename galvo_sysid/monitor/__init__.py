@@ -6,6 +6,9 @@ The modules, by noun:
   moves (:class:`Window`);
 - :mod:`~galvo_sysid.monitor.pairing`: :class:`MoveWindower` pairs halves into moves and
   cuts windows per signed target angle;
+- :mod:`~galvo_sysid.monitor.checks`, :mod:`~galvo_sysid.monitor.halves`,
+  :mod:`~galvo_sysid.monitor.clock`, :mod:`~galvo_sysid.monitor.windows`: its parts (the
+  checks, the halves waiting by move_id, the data clock, the open windows);
 - :mod:`~galvo_sysid.monitor.rejections`: moves set aside (:class:`Rejection`) and the lines
   that say them;
 - :mod:`~galvo_sysid.monitor.scheduler`: the one window scheduler
