@@ -146,11 +146,6 @@ class SerializedMoveSamples:
     offset: int
     byte_order: str
 
-    @property
-    def nbytes(self) -> int:
-        """Bytes the decoded samples take (8 per sample)."""
-        return 8 * self.samples
-
     def half(self, signal: str) -> MoveHalf:
         """The message as a :class:`MoveHalf`: the samples decoded into a new float64 array
         (a copy: the half does not keep the message's bytes alive).

@@ -36,7 +36,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import try_shutdown
 
-from galvo_sysid.errors import ConfigurationError, GalvoSysidError, one_line
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError, InvalidDataError, one_line
 from galvo_sysid.monitor.ratelog import RateLimitedLog
 from galvo_sysid.monitor.verdict import ERROR, MISMATCH, OK, STALE, WARN
 
@@ -351,7 +351,6 @@ def check_ros_arguments(args: Sequence[str]) -> None:
     Raises:
         ConfigurationError: A bad argument or parameter file (one line naming it).
     """  # noqa: D205
-    from galvo_sysid.errors import InvalidDataError
     from galvo_sysid.schema import load_yaml
 
     ros = False
