@@ -48,7 +48,12 @@ from galvo_sysid.ident.refine.checks import (
 )
 from galvo_sysid.ident.refine.joint import JointProblem, covariance
 from galvo_sysid.ident.refine.options import MAX_DAMPING, MIN_DAMPING, RefineOptions
-from galvo_sysid.ident.refine.profile import ModeProfile, profile_modes, widen_to_profiles
+from galvo_sysid.ident.refine.profile import (
+    ModeProfile,
+    check_linearised,
+    profile_modes,
+    widen_to_profiles,
+)
 from galvo_sysid.ident.refine.result import RefinedFit
 from galvo_sysid.ident.refine.window import (
     Whitener,
@@ -320,6 +325,11 @@ def _result(joint: JointProblem, x: NDArray[np.float64],
         raise ModelMismatchError(
             f'no physical mode {edge + 1} in the band {lo:.4g}..{hi:.4g} rad/s (the fit ended at '
             f'omega = {omega[edge]:.4g} rad/s, zeta = {zeta[edge]:.3g})')
+    # A strong mode is resolved by its evidence; where its cost is not quadratic, its std
+    # comes from its local profile.
+    if profiles:
+        widen_to_profiles(cov, check_linearised(joint, x, cov, profiles, band_list),
+                          [*shared, *omega, *zeta], n)
     inflate_unresolved(cov, unresolved, band_list, n)
     single = len(coefs) == 1
     return RefinedFit(

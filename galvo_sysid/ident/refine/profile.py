@@ -14,6 +14,13 @@ the cost is scanned over a grid of its band and of damping ratios, the other mod
 - a mode that lowers the cost by less than :data:`MODE_EVIDENCE`, or whose plausible
   frequencies cover half its band, is not resolved.
 
+A mode with :data:`STRONG_EVIDENCE` is not scanned over its band, but its linearised std is
+checked (:func:`check_linearised`): the cost, the damping minimised out, is evaluated 1 and 3
+linearised std either side of its frequency. Where it has not risen 3 std out by most of the
+9 times its rise at 1 std that a quadratic cost would (a heavily damped mode near Nyquist,
+whose cost is flat on one side), the mode's frequency is profiled locally and its std
+widened by how much farther out the cost reaches that level.
+
 Costs are those of :class:`~galvo_sysid.ident.refine.joint.JointProblem`: weighted by each
 window's noise, so in units of the averaged noise's variance.
 """
@@ -38,6 +45,7 @@ __all__ = [
     'PROFILE_LEVEL',
     'STRONG_EVIDENCE',
     'ModeProfile',
+    'check_linearised',
     'profile_modes',
     'widen_to_profiles',
 ]
@@ -53,6 +61,11 @@ STRONG_EVIDENCE = 400.0
 """A mode bringing this much cost reduction (20 sigma) is placed sharply: its linearised std
 holds and its profile is not scanned (saves time)."""
 
+QUADRATIC_SHORTFALL = 0.75
+"""A strong mode's cost must rise, at 3 linearised std of its frequency either side (the
+damping minimised out), by this share of the 9 times its rise at 1 std that a quadratic cost
+would; else its linearised std does not stand and it is profiled locally."""
+
 _DAMPING = tuple(float(z) for z in np.geomspace(3e-4, 0.2, 8))
 _POINTS = 32
 
@@ -67,6 +80,8 @@ class ModeProfile:
         omega_span: Smallest and largest plausible frequency [rad/s].
         zeta_span: Smallest and largest plausible damping ratio.
         k_span: Smallest and largest residue over the plausible points.
+        local: A strong mode profiled near its fit (:func:`check_linearised`), not over its
+            band.
     """
 
     evidence: float
@@ -74,13 +89,15 @@ class ModeProfile:
     omega_span: tuple[float, float]
     zeta_span: tuple[float, float]
     k_span: tuple[float, float]
+    local: bool = False
 
     def resolved(self, band: tuple[float, float]) -> bool:
         """Whether the data place the mode: it brings enough evidence and its plausible
-        frequencies do not cover half its band (in log frequency)."""  # noqa: D205, D209
+        frequencies do not cover half its band (in log frequency). A strong mode's local
+        profile places it however wide: its std says how well."""  # noqa: D205, D209
         lo, hi = band
         covered = math.log(self.omega_span[1] / self.omega_span[0]) / math.log(hi / lo)
-        return self.evidence >= MODE_EVIDENCE and covered < 0.5
+        return self.evidence >= MODE_EVIDENCE and (self.local or covered < 0.5)
 
 
 def _scan(joint: JointProblem, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
@@ -142,3 +159,95 @@ def widen_to_profiles(cov: NDArray[np.float64], profiles: Sequence[ModeProfile],
                 cov[j, :] = 0.0
                 cov[:, j] = 0.0
                 cov[j, j] = floor * floor
+
+
+def _omega_profile(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArray[np.float64],
+                   ridge: tuple[float, float, float], band: tuple[float, float]) -> tuple[
+                       NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                       NDArray[np.float64]]:
+    """Cost rise of mode i at log-frequency offsets u (in linearised std), its damping minimised.
+
+    Dampings are tried along the linearised ridge (the damping's regression on the frequency)
+    and 4 conditional std either side of it. Returns, per offset: the rise (a parabola
+    through the best three dampings), the frequency, and the best damping and its residue.
+    """
+    omega, zeta, lag = joint.unpack(x)
+    s_w, s_z, rho = ridge
+    lo, hi = band
+    w = np.clip(omega[i] * np.exp(s_w * u), lo * 1.0001, hi / 1.0001)
+    v = np.linspace(-4.0, 4.0, 9)
+    logz = (math.log(zeta[i]) + rho * s_z * u[:, None]
+            + s_z * math.sqrt(max(1.0 - rho * rho, 1e-6)) * v[None, :])
+    z = np.exp(np.clip(logz, math.log(1e-5), math.log(0.9)))
+    w_c = np.concatenate([[omega[i]], np.repeat(w, v.size)])
+    z_c = np.concatenate([[zeta[i]], z.ravel()])
+    gain, k = _scan(joint, i, omega, zeta, lag, w_c, z_c)
+    delta = (gain[0] - gain[1:]).reshape(u.size, v.size)
+    rows = np.arange(u.size)
+    best = np.argmin(delta, axis=1)
+    rise = delta[rows, best]
+    inner = (best > 0) & (best < v.size - 1)
+    for r in np.flatnonzero(inner):  # parabola through the best damping and its neighbours
+        a, b, c = delta[r, best[r] - 1: best[r] + 2]
+        curv = a - 2 * b + c
+        if curv > 0:
+            rise[r] = b - (a - c) ** 2 / (8 * curv)
+    return np.maximum(rise, 0.0), w, z[rows, best], k[1:].reshape(u.size, v.size)[rows, best]
+
+
+def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[np.float64],
+                     profiles: Sequence[ModeProfile],
+                     band_list: Sequence[tuple[float, float]]) -> list[ModeProfile]:
+    """Profiles of the strong modes whose cost is not quadratic over their linearised std.
+
+    Args:
+        joint: The problem, prewhitened as at the fit.
+        x: The fit.
+        cov: Its linearised covariance (k0, residues, frequencies, dampings, ...).
+        profiles: :func:`profile_modes` at x; strong modes have a zero-width span.
+        band_list: The modes' bands [rad/s].
+
+    Returns:
+        ``profiles`` with each strong mode whose check fails replaced by its local profile:
+        the frequencies where the cost, damping minimised out, rises by less than it does at
+        3 std by its curvature at the fit (9 for a quadratic cost in noise units), and the
+        dampings and residues along that path.
+    """
+    omega, zeta, _ = joint.unpack(x)
+    n = joint.n_modes
+    out = list(profiles)
+    for i, p in enumerate(profiles):
+        if p.omega_span[1] > p.omega_span[0]:
+            continue  # scanned over its band already
+        jw, jz = 1 + n + i, 1 + 2 * n + i
+        var_w, var_z = float(cov[jw, jw]), float(cov[jz, jz])
+        if not (var_w > 0 and var_z > 0 and math.isfinite(var_w + var_z)):
+            continue
+        s_w = math.sqrt(var_w) / omega[i]
+        s_z = math.sqrt(var_z) / zeta[i]
+        rho = float(np.clip(cov[jw, jz] / math.sqrt(var_w * var_z), -1.0, 1.0))
+        ridge = (s_w, s_z, rho)
+        rise = _omega_profile(joint, i, x, np.array([-3.0, -1.0, 1.0, 3.0]), ridge,
+                              band_list[i])[0]
+        if rise[0] >= QUADRATIC_SHORTFALL * 9.0 * rise[1] \
+                and rise[3] >= QUADRATIC_SHORTFALL * 9.0 * rise[2]:
+            continue
+        # The level of 3 std by the cost's own curvature at the fit: the linearised
+        # (sandwich) std stands for a quadratic cost, and is scaled by how much farther
+        # than 3 std the cost's rise reaches that level.
+        level = 9.0 * 0.5 * float(rise[1] + rise[2])
+        reach = 12.0
+        for _ in range(4):  # widen the scan while the plausible region reaches its ends
+            u = np.linspace(-reach, reach, 25)
+            rise, w, z, k = _omega_profile(joint, i, x, u, ridge, band_list[i])
+            ok = rise < level
+            if not (ok[0] or ok[-1]) or reach * s_w > 1.0:
+                break
+            reach *= 2.0
+        out[i] = ModeProfile(
+            evidence=p.evidence, better=None,
+            omega_span=(float(min(w[ok].min(), omega[i])), float(max(w[ok].max(), omega[i]))),
+            zeta_span=(float(min(z[ok].min(), zeta[i])), float(max(z[ok].max(), zeta[i]))),
+            k_span=(float(k[ok].min()), float(k[ok].max())),
+            local=True)
+    return out
