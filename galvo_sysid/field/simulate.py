@@ -32,7 +32,7 @@ import shutil
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.field.bags import CURRENT_TOPIC, ENCODER_TOPIC, BagWriter, stamp_to_ns
@@ -51,6 +51,7 @@ if TYPE_CHECKING:
 __all__ = [
     'CHUNK',
     'SimulationSummary',
+    'driver_qos',
     'parse_drift',
     'parse_step',
     'schedule_limits',
@@ -72,6 +73,18 @@ def schedule_limits() -> dict[str, tuple[int, int]]:
 
     return {s.name: (int(s.low or 0), int(s.high or 0)) for s in DRIVER_PARAMETERS
             if s.name in {'moves_per_angle', 'seed'}}
+
+
+def driver_qos() -> dict[str, Any]:
+    """The QoS ``galvo_driver`` offers on the move topics with its default parameters
+    (``qos_depth``, ``qos_reliability``; volatile): what a simulated bag stores as offered,
+    as ``ros2 bag record`` of the live driver would (keyword arguments of
+    :meth:`~galvo_sysid.field.bags.BagWriter.add_topic`)."""  # noqa: D205, D209
+    from galvo_sysid.monitor.parameters import defaults
+
+    values = defaults('galvo_driver')
+    return {'reliable': values['qos_reliability'] == 'reliable', 'transient_local': False,
+            'depth': values['qos_depth']}
 
 
 _NUMBER = r'[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?'
@@ -238,8 +251,8 @@ def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
     _check_space(path, moves=len(angles) * moves_per_angle,
                  samples=sim.config.record)
     with atomic_bag(path) as partial, BagWriter(partial, storage=storage) as bag:
-        bag.add_topic(CURRENT_TOPIC, MOVE_SAMPLES)
-        bag.add_topic(ENCODER_TOPIC, MOVE_SAMPLES)
+        for topic in (CURRENT_TOPIC, ENCODER_TOPIC):
+            bag.add_topic(topic, MOVE_SAMPLES, **driver_qos())
         count = write_moves(bag, _schedule(sim, angles, moves_per_angle), frame_id=frame_id)
     size = sum(p.stat().st_size for p in path.rglob('*') if p.is_file())
     changes = (*(f'drift {d}' for d in drift), *(f'step {s}' for s in steps),
