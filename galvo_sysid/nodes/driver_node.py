@@ -40,6 +40,7 @@ from galvo_sysid.model.changes import plant_at
 from galvo_sysid.model.effects import Effect, effects_from_json
 from galvo_sysid.model.physics import check_parameter_name
 from galvo_sysid.monitor.parameters import DRIVER_PARAMETERS, MAX_EFFECTS_TEXT
+from galvo_sysid.nodes.command_line import print_help
 from galvo_sysid.nodes.framework import (
     ParameterSet,
     logger,
@@ -289,7 +290,10 @@ class DriverNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of ``galvo_driver``."""
-    return run_node(DriverNode, args=sys.argv if args is None else args)
+    argv = sys.argv if args is None else args
+    if print_help('galvo_driver', argv):  # before rclpy starts
+        return 0
+    return run_node(DriverNode, args=argv)
 
 
 if __name__ == '__main__':

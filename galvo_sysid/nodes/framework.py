@@ -418,6 +418,8 @@ def run_node(factory: Callable[[], Node], *, args: Sequence[str] | None = None,
         text = one_line(err)
         if isinstance(err, _rclpy.UnknownROSArgsError):
             text = f'unknown ROS arguments {text}'
+            if "'--help'" in text or "'-h'" in text:
+                text += ' (the usage: --help before --ros-args)'
         text = re.sub(r', at /\S+:\d+', '', text).removeprefix('failed to initialize rcl: ')
         print(f'error: {text}', file=sys.stderr)
         return 2

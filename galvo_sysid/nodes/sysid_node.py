@@ -47,6 +47,7 @@ from galvo_sysid.monitor.parameters import SYSID_PARAMETERS, WINDOWER_PARAMETERS
 from galvo_sysid.monitor.scheduler import FitOutcome, fit_window
 from galvo_sysid.monitor.tasks import SysidTask
 from galvo_sysid.monitor.verdict import STATUS_MISMATCH
+from galvo_sysid.nodes.command_line import print_help
 from galvo_sysid.nodes.framework import (
     ParameterSet,
     diagnostics_qos,
@@ -203,7 +204,10 @@ class SysidNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of ``sysid``."""
-    return run_node(SysidNode, args=sys.argv if args is None else args)
+    argv = sys.argv if args is None else args
+    if print_help('sysid', argv):  # before rclpy starts
+        return 0
+    return run_node(SysidNode, args=argv)
 
 
 if __name__ == '__main__':
