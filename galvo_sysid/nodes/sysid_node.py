@@ -54,6 +54,7 @@ from galvo_sysid.nodes.framework import (
     logger,
     moves_qos,
     publish_diagnostic,
+    publish_while_up,
     results_qos,
     run_node,
     scanner_name,
@@ -160,12 +161,13 @@ class SysidNode(Node):
                     n_modes=self.model.n_modes, status=STATUS_MISMATCH,
                     status_message=self.task.mismatch_text(outcome.error or ''), model=model))
                 fill_header(msg, stamp=w.last_stamp)
-                self.results.publish(msg)
+                publish_while_up(self, self.results, msg)
             return
         msg = fill(ModalParameters(), modal_parameters_fields(outcome.result,
                                                               window_index=w.index, model=model))
         fill_header(msg, stamp=w.last_stamp)
-        self.results.publish(msg)
+        if not publish_while_up(self, self.results, msg):  # a fit finished while stopping
+            return
         r = outcome.result
         self.log.info(
             f'window {w.index}: {w.target_angle:+g} deg, {w.moves} moves, fit '
