@@ -7,7 +7,8 @@ shared pieces in :mod:`galvo_sysid.cli.common`):
 - offline, no ROS graph needed: ``simulate`` (write a bag from the simulated scanner),
   ``identify`` (identify the plant from a bag), ``info`` (what a bag holds);
 - live, on the ROS 2 graph: ``record``, ``replay``, ``echo`` (stand-ins for ``ros2 bag record``,
-  ``ros2 bag play`` and ``ros2 topic echo`` where ros2cli is not installed).
+  ``ros2 bag play`` and ``ros2 topic echo`` where ros2cli is not installed), ``launch`` (the
+  three nodes as child processes, for ``ros2 launch galvo_sysid monitor.launch.py``).
 
 Other modules add subcommands by being listed in :data:`PLUGINS` and defining
 ``register(subparsers)`` (see :func:`build_parser`).
@@ -36,7 +37,7 @@ __all__ = ['COMMANDS', 'PLUGINS', 'build_parser', 'main']
 
 PROG = 'galvo-sysid'
 
-PLUGINS = ('galvo_sysid.cli.commission', 'galvo_sysid.cli.discrepancy')
+PLUGINS = ('galvo_sysid.cli.commission', 'galvo_sysid.cli.discrepancy', 'galvo_sysid.cli.launch')
 """Modules that add subcommands if present: each defines ``register(subparsers)``, which adds
 its parser(s) and sets ``func`` (``args -> exit code``) as the parser default. ``register``
 runs for every command except the built-in ones of :data:`COMMANDS` (so also for ``--help``
@@ -75,6 +76,7 @@ your own scanner (commission once, then monitor):
   galvo-sysid identify later.mcap --model scanner.yaml
 
 on a running system (galvo_driver, sysid, watchdog nodes):
+  galvo-sysid launch --namespace scanner_1     # the three nodes (Ctrl-C stops them)
   galvo-sysid record --out /tmp/field1 --duration 30
   galvo-sysid echo /galvo/modal_parameters --once
   galvo-sysid replay /tmp/field1 --rate 2
