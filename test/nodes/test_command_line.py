@@ -79,7 +79,7 @@ def test_wants_help(argv: list[str], expected: bool) -> None:
 
 @pytest.mark.parametrize('node', sorted(NODES))
 def test_help_exits_0_before_ros(node: str, tmp_path: Path) -> None:
-    """The console script's entry point prints the usage without importing rclpy; the node
+    """The console script's entry point prints the usage without importing rclpy; a node
     module's own main (``python -m``) prints it without initialising rclpy (no log file)."""
     script = (f'import sys\nfrom galvo_sysid.nodes.command_line import {node}\n'
               f'sys.argv = ["/opt/bin/{node}", "--help"]\ncode = {node}()\n'
@@ -90,11 +90,12 @@ def test_help_exits_0_before_ros(node: str, tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout == usage(node)
     assert proc.stderr == ''
-    proc = subprocess.run([sys.executable, '-m', NODES[node].module, '--help'],
-                          capture_output=True, text=True, env=_env(logs), timeout=60,
-                          check=False)
-    assert proc.returncode == 0, proc.stderr
-    assert proc.stdout == usage(node)
+    if node == 'sysid':  # the node modules' main share print_help: one of them is enough
+        proc = subprocess.run([sys.executable, '-m', NODES[node].module, '--help'],
+                              capture_output=True, text=True, env=_env(logs), timeout=60,
+                              check=False)
+        assert proc.returncode == 0, proc.stderr
+        assert proc.stdout == usage(node)
     assert not logs.exists() or not any(logs.iterdir()), 'rclpy was initialised'
 
 
