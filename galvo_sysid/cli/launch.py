@@ -26,7 +26,7 @@ on a full ROS 2 install (launch is not on PyPI).
 Ctrl-C (SIGINT) or SIGTERM stops them: SIGINT to each node, SIGTERM to any still running
 after --stop-timeout seconds, then SIGKILL. A node that ends by itself is said in one line;
 the others keep running. Parameter files: --params-file FILE goes to every node (its sections
-`galvo_driver:`, `sysid:`, `watchdog:` or `/**:` say which node takes what);
+`/**/galvo_driver:`, `/**/sysid:`, `/**/watchdog:` or `/**:` say which node takes what);
 --params-file NODE=FILE to that node only (e.g. sysid=config/sysid.yaml). Later files win;
 --model wins over them."""
 

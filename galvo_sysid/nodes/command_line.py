@@ -20,6 +20,7 @@ import textwrap
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from galvo_sysid.field.launcher import NODE_MODULES
 from galvo_sysid.interfaces.topics import NODE_TOPICS
 from galvo_sysid.monitor.parameters import DECLARED_MODES, NODE_PARAMETERS
 
@@ -37,7 +38,10 @@ WIDTH = 100
 
 @dataclass(frozen=True)
 class NodeCommand:
-    """One node executable: its module (with ``main(args) -> exit code``) and what it does."""
+    """One node executable: its module, with ``main(args) -> exit code``, and what it does.
+
+    The modules' one table is :data:`galvo_sysid.field.launcher.NODE_MODULES`.
+    """
 
     module: str
     summary: str
@@ -47,19 +51,19 @@ class NodeCommand:
 
 NODES = {
     'galvo_driver': NodeCommand(
-        'galvo_sysid.nodes.driver_node',
+        NODE_MODULES['galvo_driver'],
         'a simulated galvano scanner (the plant of the model file, closed loop) doing '
         "positioning moves, published live; the plant's drift, steps and effects can be set "
         'while it runs.',
         'driver.yaml'),
     'sysid': NodeCommand(
-        'galvo_sysid.nodes.sysid_node',
+        NODE_MODULES['sysid'],
         'online identification: pairs current and encoder halves by move_id, fits every '
         'window_size moves of one target angle (in child processes) and publishes the modal '
         'parameters with their standard deviations.',
         'sysid.yaml'),
     'watchdog': NodeCommand(
-        'galvo_sysid.nodes.watchdog_node',
+        NODE_MODULES['watchdog'],
         'judges each identified window against the reference model (drift verdict and '
         'diagnostics OK / WARN / ERROR / STALE / MISMATCH).',
         'watchdog.yaml',

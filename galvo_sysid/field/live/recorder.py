@@ -123,7 +123,7 @@ def record(out: str | os.PathLike[str], *, topics: Sequence[str] = GALVO_TOPICS,
                             waiting.add(topic)
                         continue
                     reliable, transient = offered
-                    try:  # discovery tells no history depth: stored as unknown (as rosbag2)
+                    try:  # discovery tells no history depth (rclpy: unknown, 0): so stored
                         writer.add_topic(topic, msgtype, reliable=reliable,
                                          transient_local=transient, depth=None)
                     except BagWriteError:  # kept in writer.error: stop
