@@ -67,10 +67,8 @@ class Localisation:
             the current has died down); shares of 1.
         main_phase: The phase with the largest share (``none`` if nothing is significant).
         angles: Target angle magnitudes [deg], ascending.
-        gaps: Gap of the acceleration residual (the moves' mean, over its floor from the
-            moves' scatter) at each angle magnitude, both signs together: what the move
-            figure shows, without the whitening and the initial-condition nuisance of the
-            overall gap.
+        gaps: Gap at each angle magnitude (both signs together), the 0 Hz bin included
+            (a residual building up steadily over the record; the overall gap leaves it out).
         size_trend: How the gap depends on the angle: ``grows with the angle``, ``grows
             faster than the angle``, ``about constant``, ``shrinks with the angle``, ``only
             large moves``, ``only small moves``, ``none`` or ``single angle``.
@@ -121,8 +119,7 @@ class Localisation:
             lines.append('time: no phase above the noise')
         sizes = ', '.join(f'{a:g} deg: {g:.2f}' for a, g in zip(self.angles, self.gaps,
                                                                    strict=True))
-        lines.append(f'move size: {self.size_trend} (acceleration residual by angle, in '
-                     f'noise-floor units: {sizes})')
+        lines.append(f'move size: {self.size_trend} (gap by angle, 0 Hz included: {sizes})')
         return lines
 
 
@@ -164,18 +161,12 @@ def localise(diag: Diagnostics, *, bands: int = 16) -> Localisation:
     # time: excess of the acceleration residual's (residual / floor)^2 over 1 in each phase
     sums = dict.fromkeys(_PHASES, 0.0)
     counts = dict.fromkeys(_PHASES, 0)
-    group_z2 = np.zeros(g)
-    group_n = np.zeros(g)
     for k in range(g):
         brake, settle = _phase_bounds(diag.current[k])
         fl = diag.acceleration_floor[k]
         with np.errstate(divide='ignore', invalid='ignore'):
             zt = np.where(fl > 0, diag.acceleration_residual[k] / fl, 0.0)
         ex = zt**2 - 1.0
-        # a floor estimated from M moves: E[z^2] = (M - 1) / (M - 3) for noise alone
-        moves = float(diag.counts[k])
-        group_z2[k] = float(np.sum(zt**2)) * ((moves - 3) / (moves - 1) if moves > 3 else 1.0)
-        group_n[k] = float(np.count_nonzero(fl > 0))
         idx = np.arange(1, zt.shape[0] + 1)   # the second difference at k is centred on k
         for name, mask in (('acceleration', idx < brake),
                            ('deceleration', (idx >= brake) & (idx < settle)),
@@ -190,18 +181,19 @@ def localise(diag: Diagnostics, *, bands: int = 16) -> Localisation:
     tot = sum(density.values())
     phases = {k: (v / tot if tot > 0 else 0.0) for k, v in density.items()}
     main_phase = max(phases, key=lambda k: phases[k]) if significant else 'none'
-    # move size: the acceleration residual over its floor, as the move figure shows it (the
-    # whitened spectrum leaves out what the moves' initial conditions could explain, which
-    # hides a residual that builds up over the record, such as friction's), both signs of
-    # each magnitude pooled
+    # move size: pool both signs of each magnitude; the 0 Hz bin (a residual building up
+    # steadily over the record, as friction's does in one-way moves) counts here too, with
+    # its own floor from the moves' scatter (E[z^2] = (M - 1) / (M - 3) for M moves)
     mags = np.round(np.abs(diag.angles), 9)
     angles = tuple(float(a) for a in np.unique(mags))
+    m = diag.counts.astype(float)
+    drift2 = diag.drift_z**2 * np.where(m > 3, (m - 3) / np.maximum(m - 1, 1), 1.0)
     gaps, floors = [], []
     for a in angles:
         sel = np.flatnonzero(mags == a)
-        count = float(group_n[sel].sum())
-        gaps.append(_gap(float(group_z2[sel].sum()), count))
-        floors.append(_noise_gap(count))
+        noise = float(diag.group_cost_noise[sel].sum()) + sel.size
+        gaps.append(_gap(float(diag.group_cost[sel].sum() + drift2[sel].sum()), noise))
+        floors.append(_noise_gap(noise))
     trend, slope = _size_trend(angles, gaps, floors)
     return Localisation(bands=band_list, phases=phases, main_phase=main_phase, angles=angles,
                         gaps=tuple(gaps), size_trend=trend, size_exponent=slope)
