@@ -36,7 +36,7 @@ __all__ = ['COMMANDS', 'PLUGINS', 'build_parser', 'main']
 
 PROG = 'galvo-sysid'
 
-PLUGINS = ('galvo_sysid.cli.commission', 'galvo_sysid.cli.discrepancy')
+PLUGINS = ('galvo_sysid.cli.commission', 'galvo_sysid.cli.discrepancy', 'galvo_sysid.cli.plan')
 """Modules that add subcommands if present: each defines ``register(subparsers)``, which adds
 its parser(s) and sets ``func`` (``args -> exit code``) as the parser default. ``register``
 runs for every command except the built-in ones of :data:`COMMANDS` (so also for ``--help``

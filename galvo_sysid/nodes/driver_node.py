@@ -83,14 +83,17 @@ def simulator_config(values: dict[str, Any]) -> SimulatorConfig:
     """The simulator of the driver's parameters: the model file, record and dwell lengths.
 
     Raises:
-        ConfigurationError: Bad model file or lengths (a model without a stable controller
-            design included).
+        ConfigurationError: Bad model file, lengths or dither modes (a model without a stable
+            controller design included).
         InvalidDataError: The model file cannot be read.
     """
+    from galvo_sysid.sim.dither import dither_for_modes
+
     model = load_model(values['model'] or None)
     record = values['record_length'] or None
     dwell = None if values['dwell_length'] < 0 else values['dwell_length']
-    return SimulatorConfig(plant=model, record_length=record, dwell_length=dwell)
+    dither = dither_for_modes(values['dither.amplitude'], values['dither.modes'], model=model)
+    return SimulatorConfig(plant=model, record_length=record, dwell_length=dwell, dither=dither)
 
 
 class PlantChanges:
