@@ -732,9 +732,11 @@ def _read_mat(path: Path, where: str, max_bytes: int) -> tuple[dict[str, Any], l
     for name in wanted:
         shape, cls = found[name]
         if cls not in _MAT_NUMERIC:
-            what = {'cell': 'a cell array: put the records in a (moves, samples) matrix, '
-                            'padded, with their lengths in length'}.get(cls, f'a {cls} array')
-            raise InvalidDataError(f'{where}: {name} is {what}; expected real numbers')
+            what = {'logical': 'booleans', 'char': 'text', 'struct': 'a struct',
+                    'cell': 'a cell array'}.get(cls, f'a {cls} array')
+            hint = ': put the records in a (moves, samples) matrix, padded, with their ' \
+                'lengths in length' if cls == 'cell' else ''
+            raise InvalidDataError(f'{where}: {name} holds {what}, not real numbers{hint}')
         total += math.prod(shape) * 8
     if total > max_bytes:
         raise InvalidDataError(f'{where}: the arrays take {total:,} bytes as float64, above the '
