@@ -49,11 +49,11 @@ CSV: a header line, then one row per sample; the rows of a move together, in ord
   0,0.1622,-3.8147e-05,0.3
   0,0.4851,-3.8147e-05,0.3
   ...
-Columns, any order (a name may carry its unit: "current [A]"): move (the move's id, a
-whole number >= 0), current [A], encoder [deg] (these three required), target_angle [deg]
-and stamp [s] (the same on each row of a move), sample_period [s] (the same on every row).
-Comma-separated (tab or semicolon if the header uses it); "#" lines and blank lines are
-skipped; other columns are ignored. Moves may differ in length.
+Columns, any order (a name may carry its unit: "current [A]"): move (or move_id: the
+move's id, a whole number >= 0), current [A], encoder [deg] (these three required),
+target_angle [deg] and stamp [s] (the same on each row of a move), sample_period [s] (the
+same on every row). Comma-separated (tab or semicolon if the header uses it); "#" lines
+and blank lines are skipped; other columns are ignored. Moves may differ in length.
 
 Not in the file: --sample-period (then required), --target-angle (one angle for every
 move). Without stamps the records are put back to back from time 0.

@@ -40,11 +40,12 @@ columns, then one row per sample, the rows of a move together and in sample orde
     1,-0.1617,0.30004,-0.3
 
 Columns (any order; a name may carry its unit in brackets, ``current [A]``, which must be
-the one below): ``move`` (the move's id, a whole number >= 0; required), ``current`` [A] and
-``encoder`` [deg] (required), ``target_angle`` [deg], ``stamp`` [s] (both the same on every
-row of a move) and ``sample_period`` [s] (the same on every row). Every row has a number in
-every column; lines starting with ``#`` and blank lines are skipped; other columns are
-ignored (the summary names them). The moves may have records of different lengths.
+the one below): ``move`` (or ``move_id``: the move's id, a whole number >= 0; required),
+``current`` [A] and ``encoder`` [deg] (required), ``target_angle`` [deg], ``stamp`` [s]
+(both the same on every row of a move) and ``sample_period`` [s] (the same on every row).
+Every row has a number in every column; lines starting with ``#`` and blank lines are
+skipped; other columns are ignored (the summary names them). The moves may have records of
+different lengths.
 
 Given as options instead (:func:`read_moves`' ``sample_period`` and ``target_angle``): the
 sample period (required if the file has none) and one target angle for every move (used if
@@ -663,8 +664,11 @@ def _whole(name: str, values: NDArray[Any], where: str) -> list[int]:
 
 
 def _read_npz(path: Path, where: str, max_bytes: int) -> tuple[dict[str, Any], list[str]]:
-    """The arrays of an .npz file that :data:`ARRAY_NAMES` names, checked from their headers
-    (shape, type, size) before any is loaded; and the names of the others."""  # noqa: D205, D209
+    """The named arrays of an .npz file, and the names of the others.
+
+    The arrays :data:`ARRAY_NAMES` names are checked from their headers (shape, type, size)
+    before any is loaded.
+    """
     if not zipfile.is_zipfile(path):
         raise InvalidDataError(f'{where}: not a NumPy .npz file (not a zip archive)')
     arrays: dict[str, Any] = {}
@@ -705,8 +709,11 @@ def _read_npz(path: Path, where: str, max_bytes: int) -> tuple[dict[str, Any], l
 
 
 def _read_mat(path: Path, where: str, max_bytes: int) -> tuple[dict[str, Any], list[str]]:
-    """The arrays of a MATLAB .mat file (v4 to v7) that :data:`ARRAY_NAMES` names, checked
-    from its listing (class, size) before any is loaded; and the names of the others."""  # noqa: D205, D209
+    """The named arrays of a MATLAB .mat file (v4 to v7), and the names of the others.
+
+    The arrays :data:`ARRAY_NAMES` names are checked from the file's listing (class, size)
+    before any is loaded.
+    """
     from scipy.io import loadmat, whosmat
     from scipy.io.matlab import matfile_version
 
@@ -890,6 +897,7 @@ def _columns(header: list[str], where: str, line: int) -> dict[str, int]:
         text = cell.strip()
         name, _, unit = text.partition('[')
         name = name.strip().lower()
+        name = 'move' if name == 'move_id' else name  # as the arrays call it
         if name not in CSV_COLUMNS:
             continue
         if unit:

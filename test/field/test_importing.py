@@ -171,6 +171,18 @@ def test_csv_of_unequal_moves_with_stamps_and_comments(tmp_path: Path) -> None:
     assert moves.moves[1].current[3] == 3e-3
 
 
+def test_csv_as_a_spreadsheet_saves_it(tmp_path: Path) -> None:
+    """A byte-order mark, CRLF line ends, quoted cells, ``move_id`` for ``move``."""
+    rows = ['move_id,"current [A]",encoder,target_angle']
+    rows.extend(f'{m},"{k}",{0.3 * k / 39},0.3' for m in (4, 8) for k in range(40))
+    path = tmp_path / 'sheet.csv'
+    path.write_bytes(b'\xef\xbb\xbf' + '\r\n'.join(rows).encode() + b'\r\n')
+    moves = read_moves(path, sample_period=1e-5)
+    assert [m.move_id for m in moves.moves] == [4, 8]
+    assert moves.moves[1].current[39] == 39.0
+    assert moves.moves[1].encoder[39] == pytest.approx(0.3)
+
+
 def test_stamps_default_to_records_back_to_back() -> None:
     enc = np.tile(np.linspace(0, 0.3, 50), (3, 1))
     moves = moves_from_arrays(np.zeros((3, 50)), enc, sample_period=1e-4, target_angle=0.3)
