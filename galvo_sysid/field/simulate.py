@@ -251,8 +251,7 @@ def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
     sim = GalvoSimulator(config=cfg, seed=seed)
     sim.check_angles(angles)
     path = Path(out)
-    check_space(path, moves=len(angles) * moves_per_angle,
-                 samples=sim.config.record)
+    check_space(path, moves=len(angles) * moves_per_angle, samples=sim.config.record)
     with atomic_bag(path) as partial, BagWriter(partial, storage=storage) as bag:
         bag.add_topic(CURRENT_TOPIC, MOVE_SAMPLES)
         bag.add_topic(ENCODER_TOPIC, MOVE_SAMPLES)
