@@ -5,7 +5,9 @@ Subcommands (``galvo-sysid <command> --help`` explains each; one module each in
 shared pieces in :mod:`galvo_sysid.cli.common`):
 
 - offline, no ROS graph needed: ``simulate`` (write a bag from the simulated scanner),
-  ``identify`` (identify the plant from a bag), ``info`` (what a bag holds);
+  ``identify`` (identify the plant from a bag), ``info`` (what a bag holds), and as
+  plugins ``import`` (your own data, CSV / .npz / .mat, into a bag), ``commission``,
+  ``discrepancy``, ``plan``;
 - live, on the ROS 2 graph: ``record``, ``replay``, ``echo`` (stand-ins for ``ros2 bag record``,
   ``ros2 bag play`` and ``ros2 topic echo`` where ros2cli is not installed).
 
@@ -36,7 +38,8 @@ __all__ = ['COMMANDS', 'PLUGINS', 'build_parser', 'main']
 
 PROG = 'galvo-sysid'
 
-PLUGINS = ('galvo_sysid.cli.commission', 'galvo_sysid.cli.discrepancy', 'galvo_sysid.cli.plan')
+PLUGINS = ('galvo_sysid.cli.commission', 'galvo_sysid.cli.discrepancy', 'galvo_sysid.cli.plan',
+           'galvo_sysid.cli.import_data')
 """Modules that add subcommands if present: each defines ``register(subparsers)``, which adds
 its parser(s) and sets ``func`` (``args -> exit code``) as the parser default. ``register``
 runs for every command except the built-in ones of :data:`COMMANDS` (so also for ``--help``
@@ -69,6 +72,10 @@ a first session (no ROS graph needed):
   galvo-sysid identify /tmp/run1
   galvo-sysid identify /tmp/run1 --json > run1.json
   galvo-sysid identify bags/drifting --plot drift.png
+
+your own data (CSV, NumPy .npz or MATLAB .mat; the layout: galvo-sysid import --help):
+  galvo-sysid import moves.npz --out /tmp/mine
+  galvo-sysid identify /tmp/mine
 
 your own scanner (commission once, then monitor):
   galvo-sysid commission healthy.mcap --out scanner.yaml --plot scanner_bode.png
