@@ -89,14 +89,17 @@ class Stop:
 
 @contextlib.contextmanager
 def ros_node(name: str) -> Iterator[Node]:
-    """A node of a freshly initialised rclpy, shut down at the end; no rclpy signal handlers."""
+    """A node of a freshly initialised rclpy, shut down at the end; no rclpy signal handlers,
+    no ROS arguments from the command line."""  # noqa: D205, D209
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
     from galvo_sysid import bounded_dds_memory
 
     bounded_dds_memory()  # before the participant exists: record takes whatever is sent
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    # no command-line arguments for rcl: it would take the tool's own (replay --remap
+    # OLD:=NEW) for ROS remapping rules of this node
+    rclpy.init(args=[name], signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
         node = rclpy.create_node(name, start_parameter_services=False)
