@@ -8,8 +8,10 @@ shared pieces in :mod:`galvo_sysid.cli.common`):
   ``identify`` (identify the plant from a bag), ``info`` (what a bag holds), and as
   plugins ``import`` (your own data, CSV / .npz / .mat, into a bag), ``commission``,
   ``discrepancy``, ``plan``;
-- live, on the ROS 2 graph: ``record``, ``replay``, ``echo`` (stand-ins for ``ros2 bag record``,
-  ``ros2 bag play`` and ``ros2 topic echo`` where ros2cli is not installed).
+- live, on the ROS 2 graph: ``record``, ``replay``, ``echo``, ``topic`` (``list``, ``hz``),
+  ``param`` (``list``, ``get``, ``set``, ``describe``, ``dump``): stand-ins for ``ros2 bag
+  record``, ``ros2 bag play``, ``ros2 topic echo|list|hz`` and ``ros2 param`` where ros2cli
+  is not installed.
 
 Other modules add subcommands by being listed in :data:`PLUGINS` and defining
 ``register(subparsers)`` (see :func:`build_parser`).
@@ -28,7 +30,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from galvo_sysid import limit_blas_threads
-from galvo_sysid.cli import bag, echo, identify, info, record, replay, simulate
+from galvo_sysid.cli import bag, echo, identify, info, param, record, replay, simulate, topic
 from galvo_sysid.cli.common import guarded
 
 if TYPE_CHECKING:
@@ -47,11 +49,12 @@ and the plugins' own commands); it should import nothing heavy: the numerics bel
 ``func``. Errors of bad input raised by ``func`` become one line on stderr and exit code 1
 (:func:`~galvo_sysid.cli.common.guarded`)."""
 
-COMMANDS = ('simulate', 'identify', 'info', 'record', 'replay', 'echo', 'bag')
+COMMANDS = ('simulate', 'identify', 'info', 'record', 'replay', 'echo', 'topic', 'param',
+            'bag')
 """The built-in subcommands: running one of them registers no plugin (process start counts,
 e.g. in identify's speed against real time)."""
 
-_BUILTIN = (simulate, identify, info, record, replay, echo, bag)  # COMMANDS' modules, in order
+_BUILTIN = (simulate, identify, info, record, replay, echo, topic, param, bag)  # as COMMANDS
 
 _MAIN_HELP = """\
 Field tools for galvano-scanner system identification (galvo_sysid).
@@ -82,8 +85,13 @@ your own scanner (commission once, then monitor):
   galvo-sysid identify later.mcap --model scanner.yaml
 
 on a running system (galvo_driver, sysid, watchdog nodes):
-  galvo-sysid record --out /tmp/field1 --duration 30
+  galvo-sysid topic list -t
+  galvo-sysid topic hz /galvo/current
   galvo-sysid echo /galvo/modal_parameters --once
+  galvo-sysid echo /galvo/drift --field level
+  galvo-sysid param set /galvo_driver step.factor 0.98
+  galvo-sysid param dump /sysid > sysid_now.yaml
+  galvo-sysid record --out /tmp/field1 --duration 30
   galvo-sysid replay /tmp/field1 --rate 2
 
 exit codes: 0 ok, 1 bad input or nothing identified, 2 usage error, 130 interrupted

@@ -10,9 +10,9 @@ the move's first sample: ``stamp_origin`` + simulated time).
 
 Pace: ``rate_factor`` 1 is real time (165 moves/s back to back), 10 ten times faster, 0 as
 fast as possible. Plant changes take effect from the next move when their parameters are set
-(at start-up or live with ``ros2 param set``): ``drift.*`` (a parameter drifting linearly),
-``step.*`` (a step change) and ``effects`` (the physical effects, as the discrepancy
-workflow's JSON list).
+(at start-up or live with ``galvo-sysid param set``, or ``ros2 param set`` on a full ROS 2
+install): ``drift.*`` (a parameter drifting linearly), ``step.*`` (a step change) and
+``effects`` (the physical effects, as the discrepancy workflow's JSON list).
 
 The parameters are :data:`galvo_sysid.monitor.parameters.DRIVER_PARAMETERS`.
 
