@@ -70,8 +70,13 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument('--method', choices=('refined', 'paper-A', 'paper-B'), default=None,
                    help="identification method (default: the sysid node's, refined)")
     p.add_argument('--plot', metavar='FILE',
-                   help='also write Bode (identified vs reference) and parameter-trend plots '
-                        '(.png, .pdf or .svg)')
+                   help='also write a plot (.png, .pdf or .svg): measured frequency response '
+                        'of the averaged moves with coherence against the identified and '
+                        'reference models, and each parameter over time with the WARN and '
+                        'tolerance bands')
+    p.add_argument('--absolute', action='store_true',
+                   help="also print each window's identified values (with units) beside "
+                        'the deviations')
     p.add_argument('--window-size', type=positive(int), default=None, metavar='N',
                    help='moves per window (default: the sysid node parameter window_size, '
                         '100)')
@@ -153,14 +158,17 @@ def run(args: argparse.Namespace) -> int:
                              monitor=monitor, na=int(sysid['na']), nb=int(sysid['nb']),
                              windower=sysid, jobs=min(args.jobs or limit, limit),
                              pooling=args.pooling, model=model, model_path=model_path,
-                             progress=progress)
+                             progress=progress, response_windows=16 if args.plot else 0)
     finally:
         progress.close()
     if args.json:
         print_json(found.to_dict())
     else:
-        sys.stdout.write(format_identification(found))
-    if args.plot:
+        sys.stdout.write(format_identification(found, absolute=args.absolute))
+    if args.plot and not found.windows:
+        print(f'identify: no plot written to {args.plot}: no window identified',
+              file=sys.stderr)
+    elif args.plot:
         from galvo_sysid.field.plots import save_identification_plot
 
         path = save_identification_plot(found, args.plot)
@@ -176,9 +184,13 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def format_identification(found: BagIdentification) -> str:
-    """The readable report ``identify`` prints without ``--json``."""
-    from galvo_sysid.model import REFERENCE_MODEL, model_label
+def format_identification(found: BagIdentification, *, absolute: bool = False) -> str:
+    """The readable report ``identify`` prints without ``--json``.
+
+    With ``absolute``, a second table gives each window's identified values (units in the
+    header) beside the deviations.
+    """
+    from galvo_sysid.model import REFERENCE_MODEL, model_label, parameter_unit
 
     reference = found.reference if found.reference is not None else REFERENCE_MODEL
     ref = reference.parameters()
@@ -216,6 +228,21 @@ def format_identification(found: BagIdentification) -> str:
         if unresolved_seen:
             lines.append("  unres.: a mode the window's data do not resolve (not judged)")
         lines.append('')
+        if absolute:
+            lines.append('identified values (unresolved modes in parentheses):')
+            lines.append(f'{"win":>4} {"angle":>8} ' + ' '.join(f'{n:>13}' for n in names))
+            lines.append(f'{"":>4} {"[deg]":>8} ' + ' '.join(
+                f'{"[" + parameter_unit(n) + "]":>13}' for n in names))
+            lines.append(f'{"ref":>4} {"":>8} ' + ' '.join(f'{ref[n]:13.6g}' for n in names))
+            for w in found.windows:
+                values = w.result.model.parameters()
+                unresolved = {f'{p}{i}' for i, r in enumerate(w.result.resolved, start=1)
+                              if not r for p in ('k', 'omega_', 'zeta_')}
+                cells = ' '.join(f'{"(" + format(values.get(n, math.nan), ".5g") + ")":>13}'
+                                 if n in unresolved else f'{values.get(n, math.nan):13.6g}'
+                                 for n in names)
+                lines.append(f'{w.window_index:>4} {w.target_angle:+8.3f} {cells}')
+            lines.append('')
     if found.mismatched:
         lines.append(f'{len(found.mismatched)} window(s) do not match the model '
                      f'{found.model_name} (not identified):')
@@ -236,8 +263,8 @@ def format_identification(found: BagIdentification) -> str:
             lines.append(f'  note: {found.pooling_note}')
         for n in names:
             lines.append(f'  {n:<8} {values.get(n, math.nan):12.6g} +- '
-                         f'{stds.get(n, math.nan):<10.3g} ({dev(values, n):+.3f} % vs '
-                         f'reference {ref[n]:.6g})')
+                         f'{stds.get(n, math.nan):<10.3g} {parameter_unit(n):<12} '
+                         f'({dev(values, n):+.3f} % vs reference {ref[n]:.6g})')
         lines.append(f'  input delay {pooled.input_delay * 1e6:.2f} us, '
                      f'amplifier lag {pooled.lag_time_constant * 1e6:.2f} us')
         lines.append('')

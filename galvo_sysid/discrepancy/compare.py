@@ -93,6 +93,10 @@ class Diagnostics:
         cost_noise: J_noise, the expectation of J from the noise alone.
         group_cost: J per group, (G,).
         group_cost_noise: J_noise per group, (G,).
+        drift_z: The mean acceleration residual over the record in units of its standard
+            error (from the moves' scatter), (G,): a residual that builds up steadily over
+            the record (a constant acceleration error: friction in one direction, a current
+            offset) sits at 0 Hz, which J leaves out.
     """
 
     angles: NDArray[np.float64]
@@ -113,6 +117,7 @@ class Diagnostics:
     cost_noise: float
     group_cost: NDArray[np.float64]
     group_cost_noise: NDArray[np.float64]
+    drift_z: NDArray[np.float64]
 
     @property
     def gap(self) -> float:
@@ -366,6 +371,7 @@ class Comparison:
         residual = self.mean_encoder - mean_sim
         floor = np.empty((g_count, n))
         acc_floor = np.empty((g_count, n - 2))
+        drift_z = np.zeros(g_count)
         bases = self.basis(phys)
         for g, idx in enumerate(self.index):
             w = self.weights[g]
@@ -376,7 +382,11 @@ class Comparison:
             noise_spec[g] = to_angle / w / math.sqrt(_analysed(n))
             per = resid_moves[idx]
             floor[g] = per.std(axis=0, ddof=1) / math.sqrt(len(idx))
-            acc_floor[g] = np.diff(per, 2, axis=1).std(axis=0, ddof=1) / math.sqrt(len(idx))
+            acc = np.diff(per, 2, axis=1)
+            acc_floor[g] = acc.std(axis=0, ddof=1) / math.sqrt(len(idx))
+            drift_sd = float(acc.mean(axis=1).std(ddof=1)) / math.sqrt(len(idx))
+            if drift_sd > 0:
+                drift_z[g] = float(np.mean(np.diff(residual[g], 2))) / drift_sd
         start = self.mean_start[:, None]
         gcost = z2.sum(axis=1)
         return Diagnostics(
@@ -388,7 +398,8 @@ class Comparison:
             acceleration_residual=np.diff(residual, 2, axis=1), acceleration_floor=acc_floor,
             current=self.mean_current.copy(), cost=float(gcost.sum()),
             cost_noise=self.noise_cost(phys), group_cost=gcost,
-            group_cost_noise=np.array([nb - q.shape[1] / 2.0 for q in bases]))
+            group_cost_noise=np.array([nb - q.shape[1] / 2.0 for q in bases]),
+            drift_z=drift_z)
 
 
 def _physics(model: PlantModel | Physics) -> Physics:

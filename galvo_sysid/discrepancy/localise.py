@@ -67,7 +67,8 @@ class Localisation:
             the current has died down); shares of 1.
         main_phase: The phase with the largest share (``none`` if nothing is significant).
         angles: Target angle magnitudes [deg], ascending.
-        gaps: Gap at each angle magnitude (both signs together).
+        gaps: Gap at each angle magnitude (both signs together), the 0 Hz bin included
+            (a residual building up steadily over the record; the overall gap leaves it out).
         size_trend: How the gap depends on the angle: ``grows with the angle``, ``grows
             faster than the angle``, ``about constant``, ``shrinks with the angle``, ``only
             large moves``, ``only small moves``, ``none`` or ``single angle``.
@@ -118,7 +119,7 @@ class Localisation:
             lines.append('time: no phase above the noise')
         sizes = ', '.join(f'{a:g} deg: {g:.2f}' for a, g in zip(self.angles, self.gaps,
                                                                    strict=True))
-        lines.append(f'move size: {self.size_trend} (gap by angle: {sizes})')
+        lines.append(f'move size: {self.size_trend} (gap by angle, 0 Hz included: {sizes})')
         return lines
 
 
@@ -180,14 +181,18 @@ def localise(diag: Diagnostics, *, bands: int = 16) -> Localisation:
     tot = sum(density.values())
     phases = {k: (v / tot if tot > 0 else 0.0) for k, v in density.items()}
     main_phase = max(phases, key=lambda k: phases[k]) if significant else 'none'
-    # move size: pool both signs of each magnitude
+    # move size: pool both signs of each magnitude; the 0 Hz bin (a residual building up
+    # steadily over the record, as friction's does in one-way moves) counts here too, with
+    # its own floor from the moves' scatter (E[z^2] = (M - 1) / (M - 3) for M moves)
     mags = np.round(np.abs(diag.angles), 9)
     angles = tuple(float(a) for a in np.unique(mags))
+    m = diag.counts.astype(float)
+    drift2 = diag.drift_z**2 * np.where(m > 3, (m - 3) / np.maximum(m - 1, 1), 1.0)
     gaps, floors = [], []
     for a in angles:
         sel = np.flatnonzero(mags == a)
-        noise = float(diag.group_cost_noise[sel].sum())
-        gaps.append(_gap(float(diag.group_cost[sel].sum()), noise))
+        noise = float(diag.group_cost_noise[sel].sum()) + sel.size
+        gaps.append(_gap(float(diag.group_cost[sel].sum() + drift2[sel].sum()), noise))
         floors.append(_noise_gap(noise))
     trend, slope = _size_trend(angles, gaps, floors)
     return Localisation(bands=band_list, phases=phases, main_phase=main_phase, angles=angles,

@@ -3,7 +3,8 @@
 Starts ``galvo_driver`` (the simulated scanner, real time, the paper's 19 angles), ``sysid``
 and ``watchdog`` as separate processes on this machine's ROS 2 graph, and prints one line per
 identified window with the watchdog's verdict. Then it changes the simulated plant through
-the driver's parameters, as an operator would with ``ros2 param set``:
+the driver's parameters, as an operator would with ``galvo-sysid param set`` (or
+``ros2 param set`` on a full ROS 2 install):
 
 1. healthy scanner: every window OK;
 2. a step: omega_1 (first resonance) drops 2 %: flagged ERROR;
@@ -75,6 +76,8 @@ class _Demo:
         self.results: dict[int, Any] = {}
         self.verdicts: list[Any] = []
         self._waiting: dict[int, Any] = {}  # verdicts that came before their result
+        self._ready: dict[int, Any] = {}  # verdicts waiting for an earlier window's
+        self._next = 0  # the window shown next
         self.diagnostic_level: int | None = None
         self.node.create_subscription(ModalParameters, absolute_topic(RESULT_TOPIC, namespace=NS),
                                       self._on_result, qos)
@@ -145,7 +148,19 @@ class _Demo:
         self.results[index] = msg
         verdict = self._waiting.pop(index, None)
         if verdict is not None:
-            self._show(verdict)
+            self._ready[index] = verdict
+            self._show_ready()
+
+    def _show_ready(self, *, flush: bool = False) -> None:
+        """Show the verdicts in window order (two fit processes finish out of order); a
+        window that never comes is skipped once two later ones wait."""  # noqa: D205, D209
+        while self._ready:
+            if self._next not in self._ready:
+                if not flush and len(self._ready) < 3:
+                    return
+                self._next = min(self._ready)
+            self._show(self._ready.pop(self._next))
+            self._next += 1
 
     def _on_diagnostics(self, msg: Any) -> None:
         for status in msg.status:
@@ -156,13 +171,15 @@ class _Demo:
         self.verdicts.append(msg)
         level = int(msg.level)
         if level == STALE:
+            self._show_ready(flush=True)
             print(f'  watchdog: STALE   {msg.message.removeprefix("STALE: ")}', flush=True)
             return
         self.windows += 1
         if int(msg.window_index) not in self.results:
             self._waiting[int(msg.window_index)] = msg
             return
-        self._show(msg)
+        self._ready[int(msg.window_index)] = msg
+        self._show_ready()
 
     def _show(self, msg: Any) -> None:
         level = int(msg.level)
@@ -171,7 +188,9 @@ class _Demo:
         if r is None:
             print(f'  window {msg.window_index:3d}  -> {LEVEL_NAMES[level]:5s} {text}', flush=True)
         else:
-            omega = ' '.join(f'{w:7.0f}' for w in r.natural_frequencies)
+            resolved = list(r.resolved) or [True] * len(r.natural_frequencies)
+            omega = ' '.join(f'{w:7.0f}' if ok else f'{"unres.":>7}'
+                             for w, ok in zip(r.natural_frequencies, resolved, strict=False))
             print(f'  window {msg.window_index:3d} {r.target_angle:+6.2f} deg {r.moves:3d} moves '
                   f'k0 {r.k0:.4g}  omega {omega} rad/s  fit {r.fit_percent:4.1f} %  '
                   f'-> {LEVEL_NAMES[level]:5s} {text}', flush=True)
@@ -184,6 +203,7 @@ class _Demo:
                 phase.flag_message = text
 
     def phase(self, name: str) -> _Phase:
+        self._show_ready(flush=True)
         latest = max(self.results, default=-1)
         p = _Phase(name=name, start_window=latest + 1)
         self.phases.append(p)

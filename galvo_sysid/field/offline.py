@@ -50,6 +50,10 @@ if TYPE_CHECKING:
     import os
     from collections.abc import Callable
 
+    import numpy as np
+    from numpy.typing import NDArray
+
+    from galvo_sysid.ident.commission import FrequencyResponse
     from galvo_sysid.model import PlantModel
     from galvo_sysid.monitor.drift import DriftMonitor
     from galvo_sysid.monitor.moves import Window
@@ -69,7 +73,8 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
                  jobs: int = 1, pooling: str | None = None,
                  joint_windows: int = JOINT_WINDOWS, model: PlantModel | None = None,
                  model_path: str = '',
-                 progress: Callable[[int, int], None] | None = None) -> BagIdentification:
+                 progress: Callable[[int, int], None] | None = None,
+                 response_windows: int = 0) -> BagIdentification:
     """Identify every window of moves in a bag (see the module docs for the path taken).
 
     Args:
@@ -101,6 +106,9 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
             moves must have, what every window and the joint fit identify.
         model_path: Its file, for the messages ('': the packaged paper model).
         progress: Called as ``progress(messages_done, messages_total)`` while reading.
+        response_windows: Identified windows (the first ones with the first one's record
+            length) whose moves give the measured frequency response of the result (0: none;
+            for the plot).
 
     Raises:
         BagError: Missing, corrupt or truncated bag, no galvo topics, wrong topic type.
@@ -146,6 +154,7 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
     fit = functools.partial(fit_window, method=method, model=plant,
                             options={'na': int(na), 'nb': int(nb)})
     windows: list[WindowResult] = []
+    spectra: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
     # where each window's set-aside moves go in `rejected`: where they went when each window
     # was fitted as soon as it completed (so the list does not depend on the timing)
     marks: dict[int, int] = {}
@@ -179,6 +188,9 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
                                     verdict))
         if pooling == 'joint':
             _keep(kept, window, limit=int(joint_windows))
+        if len(spectra) < response_windows and window.moves >= 3 and (
+                not spectra or spectra[0][0].shape[1] == window.current.shape[1]):
+            spectra.append((window.current, window.encoder))
 
     # the children are forked: they inherit the imported numerics (no ROS in this process)
     with WindowScheduler(fit, processes=int(jobs) if int(jobs) > 1 else 0,
@@ -221,7 +233,22 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
                              pooling_note=note, model=model_path, mismatched=tuple(mismatched),
                              model_mismatch=why, reference=judge.reference,
                              reference_name=judge.reference_name,
-                             sample_period=plant.sample_period)
+                             sample_period=plant.sample_period, dynamics=plant.dynamics,
+                             warn_fraction=judge.warn_fraction,
+                             response=_response(spectra, plant.sample_period))
+
+
+def _response(spectra: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+              sample_period: float) -> FrequencyResponse | None:
+    """The measured frequency response of the kept windows (None without any)."""
+    if not spectra:
+        return None
+    from galvo_sysid.ident.commission import frequency_response
+
+    try:
+        return frequency_response(spectra, sample_period=sample_period)
+    except GalvoSysidError:
+        return None
 
 
 def _failure(err: BaseException | None, error: str | None) -> str:

@@ -15,8 +15,9 @@ from galvo_sysid.jsonsafe import finite_or_none
 from galvo_sysid.model import model_label
 
 if TYPE_CHECKING:
+    from galvo_sysid.ident.commission import FrequencyResponse
     from galvo_sysid.ident.result import IdentificationResult
-    from galvo_sysid.model import ModalModel
+    from galvo_sysid.model import InputDynamics, ModalModel
     from galvo_sysid.monitor.rejections import Rejection
     from galvo_sysid.monitor.verdict import DriftVerdict
 
@@ -113,6 +114,10 @@ class BagIdentification:
         reference: The drift monitor's reference model (what deviations are taken from).
         reference_name: How messages name it (its file).
         sample_period: The model's sample period [s].
+        dynamics: The model's input dynamics (what the windows' responses are drawn with).
+        warn_fraction: The drift monitor's WARN threshold, as a fraction of each tolerance.
+        response: The measured frequency response of the first windows' averaged moves, if
+            asked for (``identify_bag(response_windows=...)``, for the plot; not in JSON).
     """
 
     info: BagInfo
@@ -131,6 +136,9 @@ class BagIdentification:
     reference: ModalModel | None = None
     reference_name: str = ''
     sample_period: float = 1e-5
+    dynamics: InputDynamics | None = None
+    warn_fraction: float = 0.5
+    response: FrequencyResponse | None = None
 
     @property
     def model_name(self) -> str:

@@ -3,8 +3,9 @@
 The nodes use the relative names (a namespace per scanner prefixes them, e.g.
 ``-r __ns:=/scanner_1`` gives ``/scanner_1/galvo/current``), except :data:`DIAGNOSTICS_TOPIC`.
 Bags and the command-line tools name topics absolutely: :func:`absolute_topic`, and
-:data:`GALVO_TOPICS` for the scanner without namespace. What each node subscribes to and
-publishes is :data:`NODE_TOPICS` (the nodes' ``--help``; a test checks it on a live graph).
+:data:`GALVO_TOPICS` (:data:`MOVE_TOPICS`: the moves only) for the scanner without
+namespace; :func:`galvo_topic` tells a galvo topic in any namespace. What each node subscribes to
+and publishes is :data:`NODE_TOPICS` (the nodes' ``--help``; a test checks it on a live graph).
 """
 
 from __future__ import annotations
@@ -26,12 +27,14 @@ __all__ = [
     'GALVO_TOPICS',
     'MODAL_PARAMETERS',
     'MOVE_SAMPLES',
+    'MOVE_TOPICS',
     'NODE_TOPICS',
     'RESULT_TOPIC',
     'SIGNAL_TOPICS',
     'TOPIC_TYPES',
     'NodeTopics',
     'absolute_topic',
+    'galvo_topic',
 ]
 
 CURRENT_TOPIC = 'galvo/current'
@@ -78,6 +81,23 @@ GALVO_TOPICS = (absolute_topic(CURRENT_TOPIC), absolute_topic(ENCODER_TOPIC),
                 absolute_topic(RESULT_TOPIC), absolute_topic(DRIFT_TOPIC))
 """The topics the galvo nodes publish, without namespace: ``/galvo/current``,
 ``/galvo/encoder``, ``/galvo/modal_parameters``, ``/galvo/drift`` (what bags record)."""
+
+MOVE_TOPICS = GALVO_TOPICS[:2]
+"""The topics of the moves themselves, without namespace: ``/galvo/current``,
+``/galvo/encoder`` (what ``galvo-sysid replay`` publishes unless told otherwise; the other
+two are results, computed afresh by the nodes from the moves)."""
+
+
+def galvo_topic(topic: str) -> str | None:
+    """Which galvo topic an absolute name is, in any namespace, or None.
+
+    Example: ``galvo_topic('/scanner_1/galvo/drift') == DRIFT_TOPIC``;
+    ``galvo_topic('/galvo/current') == CURRENT_TOPIC``; ``galvo_topic('/rosout') is None``.
+    """
+    for relative in TOPIC_TYPES:
+        if topic.endswith('/' + relative):
+            return relative
+    return None
 
 
 @dataclass(frozen=True)

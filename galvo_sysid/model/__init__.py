@@ -29,7 +29,13 @@ from galvo_sysid.model.files import (
     model_to_yaml,
     save_model,
 )
-from galvo_sysid.model.modal import ModalModel, default_bands, parameter_names, relative_errors
+from galvo_sysid.model.modal import (
+    ModalModel,
+    default_bands,
+    parameter_names,
+    parameter_unit,
+    relative_errors,
+)
 from galvo_sysid.model.paper import (
     PAPER_ANGLES,
     PAPER_MODEL,
@@ -66,6 +72,7 @@ __all__ = [
     'model_label',
     'model_to_yaml',
     'parameter_names',
+    'parameter_unit',
     'parse_effect',
     'plant_at',
     'relative_errors',

@@ -28,6 +28,7 @@ __all__ = [
     'ModalModel',
     'default_bands',
     'parameter_names',
+    'parameter_unit',
     'relative_errors',
 ]
 
@@ -44,6 +45,15 @@ def parameter_names(n_modes: int) -> tuple[str, ...]:
     return ('k0', *(f'k{i}' for i in range(1, n_modes + 1)),
             *(f'omega_{i}' for i in range(1, n_modes + 1)),
             *(f'zeta_{i}' for i in range(1, n_modes + 1)))
+
+
+def parameter_unit(name: str) -> str:
+    """The unit of a modal parameter: ``deg/(A s^2)`` (gains), ``rad/s``, ``-`` (damping)."""
+    if name.startswith('omega_'):
+        return 'rad/s'
+    if name.startswith('zeta_'):
+        return '-'
+    return 'deg/(A s^2)'
 
 
 @dataclass(frozen=True)

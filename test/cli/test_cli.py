@@ -15,7 +15,7 @@ from galvo_sysid.interfaces.topics import MOVE_SAMPLES
 from galvo_sysid.model import REFERENCE_MODEL
 from galvo_sysid.sim.simulator import GalvoSimulator
 
-SUBCOMMANDS = ('simulate', 'identify', 'info', 'record', 'replay', 'echo')
+SUBCOMMANDS = ('simulate', 'identify', 'info', 'record', 'replay', 'echo', 'topic', 'param')
 WINDOW_FIELDS = {'target_angle', 'moves', 'input_delay', 'k0', 'residues',
                  'natural_frequencies', 'damping_ratios', 'k0_std', 'residues_std',
                  'natural_frequencies_std', 'damping_ratios_std', 'fit_percent', 'drift',
@@ -510,3 +510,26 @@ def test_discrepancy_refuses_data_of_another_sample_period(venv_bin: Path,
     _, _, bag = other_scanner
     proc = run(venv_bin, 'discrepancy', bag)  # the paper's model: 10 us
     assert_one_line_error(proc, 'sampled at 1.33e-05 s but the model at 1e-05 s')
+
+
+def test_absolute_values_with_units_and_no_plot_without_a_window(
+        venv_bin: Path, sim_bag: Path, tmp_path: Path) -> None:
+    proc = run(venv_bin, 'identify', sim_bag, '--absolute')
+    assert proc.returncode == 0, proc.stderr
+    table = proc.stdout.split('identified values')[1].split('\n\n')[0].splitlines()
+    assert '[rad/s]' in table[2]
+    assert '[deg/(A s^2)]' in table[2]
+    window = json.loads(run(venv_bin, 'identify', sim_bag, '--json').stdout)['windows'][0]
+    row = next(line.split() for line in table if line.split()[:1] == ['0'])
+    assert float(row[2]) == pytest.approx(window['k0'], rel=1e-5)
+    pooled = [line for line in proc.stdout.splitlines() if line.startswith('  omega_1 ')]
+    assert pooled
+    assert 'rad/s' in pooled[0]
+    tiny = tmp_path / 'tiny'
+    assert run(venv_bin, 'simulate', '--out', tiny, '--angles', '0.3', '--moves-per-angle',
+               '4').returncode == 0
+    plot = tmp_path / 'none.png'
+    proc = run(venv_bin, 'identify', tiny, '--plot', plot)
+    assert proc.returncode == 1
+    assert 'no plot written' in proc.stderr
+    assert not plot.exists()

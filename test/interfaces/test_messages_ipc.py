@@ -48,6 +48,10 @@ def test_modal_parameters_cross_process() -> None:
         deadline = time.monotonic() + 30
         while not received and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.1)
+        # The publisher waits for this reader's acknowledgement: keep the reader until it
+        # is done (a reader gone first leaves it waiting for the reader's lease to expire).
+        while proc.poll() is None and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.05)
         node.destroy_node()
     finally:
         rclpy.shutdown()

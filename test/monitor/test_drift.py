@@ -342,3 +342,13 @@ def test_a_result_that_did_not_match_the_model_is_a_mismatch_never_drift() -> No
     assert 'identification failed: singular Jacobian' in failed.message
     back = json.loads(json.dumps(v.to_dict(), allow_nan=False))
     assert back['level'] == 'MISMATCH'
+
+
+def test_a_tolerance_tighter_than_the_data_resolve_is_said() -> None:
+    # zeta_2 identified with a 10 % std against a 20 % tolerance: 3 std = 30 % > 20 %
+    v = DriftMonitor().assess(result(rel_std={'zeta_2': 0.1}), window_index=0)
+    assert v.level == OK
+    assert v.unresolvable == ('zeta_2',)
+    assert 'tolerance tighter than the data resolve (zeta_2: 3 std = 30 % > 20 %)' in v.message
+    assert json.loads(json.dumps(v.to_dict()))['tolerance_unresolvable'] == ['zeta_2']
+    assert DriftMonitor().assess(result(), window_index=0).unresolvable == ()
