@@ -23,11 +23,6 @@ FIELDS = ('target_angle', 'moves', 'input_delay', 'lag_time_constant', 'k0', 're
           'resolved', 'set_aside', 'crlb_std')
 
 
-@pytest.fixture(scope='module')
-def windows_1psi() -> list[tuple[np.ndarray, np.ndarray]]:
-    return [simulate_window(PSI, moves=100, seed=seed) for seed in range(8)]
-
-
 def test_refined_beats_the_paper_pipeline(windows_1psi: list) -> None:
     # Closed-loop data at 1 psi, 8 noise seeds: the refined fit's median |relative error| is
     # below the paper pipeline's (method A, 1.6 T delay) for every parameter but k0, where
