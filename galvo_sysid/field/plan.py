@@ -25,6 +25,7 @@ import numpy as np
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.ident.refine.bound import crlb_at
 from galvo_sysid.ident.refine.options import DEFAULT_RESOLVE_Z as RESOLVE_Z
+from galvo_sysid.model.modal import parameter_mode
 from galvo_sysid.model.paper import PSI
 from galvo_sysid.sim.config import SimulatorConfig
 from galvo_sysid.sim.dither import MAX_DITHER, DitherConfig
@@ -196,7 +197,7 @@ def plan(model: PlantModel, *, angles: Sequence[float] | None = None, moves: int
         delta = abs(rel * names[name])
         best = min(s[name] for s in per_angle.values())
         need = math.ceil(moves * (n_sigma * best / delta) ** 2)
-        mode = _mode_of(name)
+        mode = parameter_mode(name)
         if mode:  # the watchdog judges a mode's parameters only where the window resolves it
             k = f'k{mode}'
             k_best = min(s[k] for s in per_angle.values())
@@ -213,12 +214,6 @@ def plan(model: PlantModel, *, angles: Sequence[float] | None = None, moves: int
                 position_error=max(_position_error(config, a) for a in angle_list),
                 encoder_resolution=config.encoder_resolution, moves_to_detect=detect,
                 n_sigma=n_sigma, dither_for_target=for_target)
-
-
-def _mode_of(name: str) -> int:
-    """The 1-based resonant mode of a parameter name (0 for k0)."""
-    tail = name.rsplit('_', 1)[-1] if '_' in name else name[1:]
-    return int(tail) if tail.isdigit() else 0
 
 
 def _dither_search(model: PlantModel, config: SimulatorConfig, angles: tuple[float, ...],
