@@ -356,7 +356,7 @@ def test_a_tolerance_tighter_than_the_data_resolve_is_said() -> None:
     assert DriftMonitor().assess(result(), window_index=0).unresolvable == ()
 
 
-# -- what the mutation run of tools/mutate.py found untested (docs/mutation.md) -------------
+# -- what the mutation run of tools/mutate.py found untested -------------
 
 CHECKED_OPTIONS = ('warn_fraction', 'n_sigma', 'trend_sigma', 'trend_fraction',
                    'step_fraction', 'min_fit_percent')
