@@ -97,6 +97,10 @@ class Diagnostics:
             error (from the moves' scatter), (G,): a residual that builds up steadily over
             the record (a constant acceleration error: friction in one direction, a current
             offset) sits at 0 Hz, which J leaves out.
+        detrended_residual: ``residual`` less its least-squares straight line (the unknown
+            start offset and start velocity) [deg], (G, N).
+        detrended_floor: Its noise floor, from the scatter of the moves' own detrended
+            residuals [deg], (G, N).
     """
 
     angles: NDArray[np.float64]
@@ -118,6 +122,8 @@ class Diagnostics:
     group_cost: NDArray[np.float64]
     group_cost_noise: NDArray[np.float64]
     drift_z: NDArray[np.float64]
+    detrended_residual: NDArray[np.float64]
+    detrended_floor: NDArray[np.float64]
 
     @property
     def gap(self) -> float:
@@ -372,6 +378,12 @@ class Comparison:
         floor = np.empty((g_count, n))
         acc_floor = np.empty((g_count, n - 2))
         drift_z = np.zeros(g_count)
+        # a straight line per record (start offset and velocity) removed by least squares
+        line = np.stack([np.ones(n), t - t.mean()], axis=1)
+        flat = np.eye(n) - line @ np.linalg.pinv(line)
+        detrended = resid_moves @ flat.T
+        det_mean = np.empty((g_count, n))
+        det_floor = np.empty((g_count, n))
         bases = self.basis(phys)
         for g, idx in enumerate(self.index):
             w = self.weights[g]
@@ -382,6 +394,8 @@ class Comparison:
             noise_spec[g] = to_angle / w / math.sqrt(_analysed(n))
             per = resid_moves[idx]
             floor[g] = per.std(axis=0, ddof=1) / math.sqrt(len(idx))
+            det_mean[g] = detrended[idx].mean(axis=0)
+            det_floor[g] = detrended[idx].std(axis=0, ddof=1) / math.sqrt(len(idx))
             acc = np.diff(per, 2, axis=1)
             acc_floor[g] = acc.std(axis=0, ddof=1) / math.sqrt(len(idx))
             drift_sd = float(acc.mean(axis=1).std(ddof=1)) / math.sqrt(len(idx))
@@ -399,7 +413,7 @@ class Comparison:
             current=self.mean_current.copy(), cost=float(gcost.sum()),
             cost_noise=self.noise_cost(phys), group_cost=gcost,
             group_cost_noise=np.array([nb - q.shape[1] / 2.0 for q in bases]),
-            drift_z=drift_z)
+            drift_z=drift_z, detrended_residual=det_mean, detrended_floor=det_floor)
 
 
 def _physics(model: PlantModel | Physics) -> Physics:

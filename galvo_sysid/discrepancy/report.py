@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from galvo_sysid.discrepancy.localise import Localisation
     from galvo_sysid.discrepancy.workflow import DiscrepancyResult
 
-__all__ = ['format_result', 'write_report']
+__all__ = ['format_result', 'verdict_sentence', 'write_report']
 
 _UNITS = {'delay': 's', 'natural_frequency': 'rad/s', 'damping_ratio': '', 'residue':
           'deg/(A s^2)', 'friction_current': 'A', 'gain_ratio': '', 'current_limit': 'A'}
@@ -52,6 +52,35 @@ def _params(params: dict[str, float], sample_period: float) -> str:
             text += f' ({v / (2 * math.pi):.4g} Hz)'
         parts.append(text)
     return ', '.join(parts)
+
+
+def _added(result: DiscrepancyResult) -> str:
+    """The effects the workflow added, with their final parameters."""
+    t = result.initial_model.sample_period
+    added = [e for e in result.final_model.effects if e not in result.initial_model.effects]
+    return ' and '.join(f'{e.name} ({_params(e.params(), t)})' for e in added)
+
+
+def verdict_sentence(result: DiscrepancyResult) -> str:
+    """The verdict in one sentence: named, unexplained or consistent, with the numbers."""
+    r = result.remaining
+    noise = f'noise alone stays below {r.noise_gap:.2g}'
+    if result.verdict == 'consistent':
+        return (f'consistent: the model explains the moves within the noise (gap '
+                f'{r.gap:.3g}; {noise}).')
+    if result.verdict == 'named':
+        names = _added(result)
+        verb = 'explain' if ' and ' in names else 'explains'
+        rest = (f'; the {r.gap:.3g} left is {r.ratio:.1f} noise gaps, within the tolerance '
+                f'of {result.tolerance:g}' if r.significant else '')
+        return (f'named: {names} {verb} the gap ({result.gap_before:.3g} -> {r.gap:.3g}; '
+                f'{noise}{rest}).')
+    partly = (f' (after {_added(result)}, which explained part of it: '
+              f'{result.gap_before:.3g} -> {r.gap:.3g})' if result.steps else '')
+    return (f'unexplained: a gap of {r.gap:.3g} remains ({r.ratio:.1f} x the noise gap, '
+            f'{r.significance:.0f} noise std; mean residual {r.residual_rms:.2g} deg RMS '
+            f'against a floor of {r.floor_rms:.2g} deg) that no library effect explains'
+            f'{partly}: {r.where.phrase()}.')
 
 
 def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
@@ -76,14 +105,12 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
         lines.append(f'  {c.effect:<20} {c.score:>12.4g}   gap after {c.gap:7.3g}   '
                      f'white {c.whiteness:7.3g}   {params}')
     lines.append('')
-    if not result.steps:
-        lines.append('found: none - the model explains the moves within the noise' if
-                     result.gap_before < result.noise_gap else
-                     'found: none - no candidate effect explains the gap')
-        if result.gap_before >= result.noise_gap:
-            lines.extend(_mode_hint(result))
-    else:
-        lines.append(f'found: {result.effect} ({_params(result.parameters, t)})')
+    lines.append(f'verdict: {verdict_sentence(result)}')
+    if result.verdict == 'unexplained':
+        lines.extend(_mode_hint(result))
+    if result.steps:
+        head = 'found' if result.verdict == 'named' else 'added, explaining part of the gap'
+        lines.append(f'{head}: {result.effect} ({_params(result.parameters, t)})')
         for i, s in enumerate(result.steps, start=1):
             lines.append(f'  step {i}: {s.effect} ({_params(s.parameters, t)}), score '
                          f'{s.score:.4g}, gap {s.gap_before:.3g} -> {s.gap_after:.3g}')
@@ -101,7 +128,8 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
 def _mode_hint(result: DiscrepancyResult) -> list[str]:
     """A hint when the unexplained residual sits at the model's own modes."""
     freqs = [w / (2 * math.pi) for w in result.initial_model.modal.natural_frequencies]
-    hits = sorted({f for b in result.where.main_bands for f in freqs if b.low <= f <= b.high})
+    hits = sorted({f for b in result.remaining.where.main_bands for f in freqs
+                   if b.low <= f <= b.high})
     if not hits:
         return []
     where = ', '.join(f'{f / 1e3:.3g} kHz' for f in hits)
@@ -227,7 +255,7 @@ def _plot_candidates(result: DiscrepancyResult, path: Path) -> None:
         ax.grid(True, axis='x', alpha=0.3)
         if i == 0:
             ax.legend(fontsize=7)
-    fig.suptitle('Candidate effects', fontsize=10)
+    fig.suptitle(f'Candidate effects - verdict: {result.verdict}', fontsize=10)
     _save(plt, fig, path)
 
 

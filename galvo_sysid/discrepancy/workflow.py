@@ -5,9 +5,14 @@
 (:mod:`galvo_sysid.discrepancy.candidates`) and accepts the best when its score exceeds
 ``threshold`` and it closes at least a quarter of the gap. The accepted effect is added to
 the model, the effects added so far are refitted together, and the search repeats while the
-gap stays above the noise, so several effects are found in turn. ``none`` is the answer when
-no candidate is worth its parameters. Where the model disagrees before and after is
-:func:`~galvo_sysid.discrepancy.localise.localise`.
+gap stays above the noise, so several effects are found in turn. Where the model disagrees
+before and after is :func:`~galvo_sysid.discrepancy.localise.localise`.
+
+Every run ends in a verdict (:data:`VERDICTS`): ``named`` when the effects added leave at
+most ``tolerance`` noise gaps; ``unexplained`` when a significant gap (above the noise gap)
+remains that no library effect explains, with where it sits and how large it is
+(:class:`Remaining`); ``consistent`` when the given model explains the moves within the
+noise. A significant gap is never answered with ``none``.
 """
 
 from __future__ import annotations
@@ -16,6 +21,8 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from galvo_sysid.discrepancy.candidates import CandidateFit, _Fitter
 from galvo_sysid.discrepancy.compare import Comparison, Diagnostics
@@ -31,13 +38,76 @@ if TYPE_CHECKING:
 
 __all__ = [
     'DEFAULT_THRESHOLD',
+    'DEFAULT_TOLERANCE',
+    'VERDICTS',
     'DiscrepancyResult',
+    'Remaining',
     'Step',
     'find_discrepancy',
 ]
 
 DEFAULT_THRESHOLD = 10.0
 """Score (BIC drop) a candidate needs to be accepted."""
+
+DEFAULT_TOLERANCE = 2.0
+"""After effects were named, the remaining gap up to this many noise gaps still counts as
+explained (a model of an effect is rarely exact: Coulomb friction's stick-slip leaves up to
+about 1.5 noise gaps); above it the verdict is ``unexplained``."""
+
+VERDICTS = ('named', 'unexplained', 'consistent')
+"""How every run ends: effects named that explain the gap; a significant gap that no
+library effect explains; or a model that explains the moves within the noise."""
+
+
+@dataclass(frozen=True)
+class Remaining:
+    """The gap the final model leaves, against the noise floor, and where it sits.
+
+    Attributes:
+        gap: Gap of the final model (noise-floor units).
+        noise_gap: Largest gap the noise alone gives (three standard deviations).
+        significance: (J - J_noise) / sqrt(J_noise): the remaining cost's excess over the
+            noise in its standard deviations (about 0 +- 1 for noise alone; the noise gap is
+            3).
+        significant: Whether the gap exceeds the noise gap.
+        residual_rms: RMS of the mean residual over the record and the target angles [deg],
+            each group's start offset and start velocity (a straight line) removed.
+        floor_rms: RMS of that residual's noise floor (standard error of the mean) [deg].
+        where: Where the final model still disagrees (frequency, move phase, move size).
+    """
+
+    gap: float
+    noise_gap: float
+    significance: float
+    significant: bool
+    residual_rms: float
+    floor_rms: float
+    where: Localisation
+
+    @property
+    def ratio(self) -> float:
+        """The gap in noise gaps."""
+        return self.gap / self.noise_gap if self.noise_gap > 0 else math.nan
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return {'gap': finite_or_none(self.gap), 'noise_gap': finite_or_none(self.noise_gap),
+                'ratio': finite_or_none(self.ratio),
+                'significance': finite_or_none(self.significance),
+                'significant': self.significant,
+                'residual_rms_deg': finite_or_none(self.residual_rms),
+                'floor_rms_deg': finite_or_none(self.floor_rms),
+                'where': self.where.to_dict()}
+
+
+def _remaining(comp: Comparison, diag: Diagnostics, where: Localisation) -> Remaining:
+    """The remaining gap of a model's diagnostics, its significance and size."""
+    noise = diag.cost_noise
+    significance = (diag.cost - noise) / math.sqrt(noise) if noise > 0 else math.nan
+    return Remaining(gap=diag.gap, noise_gap=comp.noise_gap, significance=float(significance),
+                     significant=diag.gap > comp.noise_gap,
+                     residual_rms=float(np.sqrt(np.mean(diag.detrended_residual**2))),
+                     floor_rms=float(np.sqrt(np.mean(diag.detrended_floor**2))), where=where)
 
 
 @dataclass(frozen=True)
@@ -79,8 +149,14 @@ class DiscrepancyResult:
     """What :func:`find_discrepancy` found.
 
     Attributes:
-        effect: The first (most significant) effect added, or ``none``.
-        parameters: Its parameters in the final model (empty for ``none``).
+        verdict: One of :data:`VERDICTS`: ``named`` (the effects added explain the gap, up
+            to ``tolerance`` noise gaps), ``unexplained`` (the remaining gap is significant
+            and no library effect explains it; any effects added explain only part of it)
+            or ``consistent`` (the given model explains the moves within the noise).
+        effect: The first (most significant) effect added; ``none`` when the model is
+            consistent with the moves, ``unexplained`` when no effect was added to a
+            significant gap.
+        parameters: Its parameters in the final model (empty without an effect).
         gap_before: Gap of the given model.
         gap_after: Gap of the final model (every step added).
         candidates: The first round's candidates, best first (``none`` included).
@@ -96,10 +172,13 @@ class DiscrepancyResult:
         threshold: Score a candidate needed.
         noise_gap: Largest gap the noise alone gives (about 0.1 % chance to exceed it).
         moves: Moves compared.
+        remaining: The final model's gap against the noise, and where it sits.
+        tolerance: Remaining gap (in noise gaps) still counted as explained by named effects.
         before: Diagnostics of the given model (for reports).
         after: Diagnostics of the final model.
     """
 
+    verdict: str
     effect: str
     parameters: dict[str, float]
     gap_before: float
@@ -114,18 +193,32 @@ class DiscrepancyResult:
     threshold: float
     noise_gap: float
     moves: int
+    remaining: Remaining
+    tolerance: float
     before: Diagnostics = field(repr=False, compare=False)
     after: Diagnostics = field(repr=False, compare=False)
+
+    @property
+    def sentence(self) -> str:
+        """The verdict in one sentence (:func:`.report.verdict_sentence`)."""
+        from galvo_sysid.discrepancy.report import verdict_sentence
+
+        return verdict_sentence(self)
 
     def to_dict(self) -> dict[str, Any]:
         """The ``--json`` object.
 
-        Keys: effect, parameters, gap_before, gap_after, candidates, steps, then where,
-        where_after, moves, angles, threshold, noise_gap and model (the final model).
+        Keys: verdict, summary (the verdict's sentence), remaining (the remaining gap, its
+        significance and where it sits), effect, parameters, gap_before, gap_after,
+        candidates, steps, then where, where_after, moves, angles, threshold, noise_gap,
+        tolerance and model (the final model).
         """
         from galvo_sysid.model.files import model_to_dict
 
         return {
+            'verdict': self.verdict,
+            'summary': self.sentence,
+            'remaining': self.remaining.to_dict(),
             'effect': self.effect,
             'parameters': dict(self.parameters),
             'gap_before': finite_or_none(self.gap_before),
@@ -138,6 +231,7 @@ class DiscrepancyResult:
             'angles': [float(a) for a in self.before.angles],
             'threshold': self.threshold,
             'noise_gap': self.noise_gap,
+            'tolerance': self.tolerance,
             'model': model_to_dict(self.final_model),
         }
 
@@ -145,6 +239,7 @@ class DiscrepancyResult:
 def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
                      threshold: float = DEFAULT_THRESHOLD, max_effects: int = 3,
                      min_gap: float | None = None, min_improvement: float = 0.25,
+                     tolerance: float = DEFAULT_TOLERANCE,
                      effects: Sequence[str] = EFFECT_NAMES,
                      progress: Callable[[str], None] | None = None) -> DiscrepancyResult:
     """Compare a model with measured moves, name the missing effects and add them.
@@ -160,11 +255,15 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
         min_improvement: A candidate is accepted only if it also closes at least this
             fraction of the gap (statistically significant but practically irrelevant
             additions are left out).
+        tolerance: After effects were added, a remaining gap up to this many noise gaps
+            still counts as explained (verdict ``named``); above it the verdict is
+            ``unexplained``.
         effects: Candidate effects to try.
         progress: Called with a short text before each candidate fit.
 
     Returns:
-        The result; ``effect`` is ``none`` when the model explains the moves.
+        The result; its ``verdict`` says whether effects were named, a significant gap is
+        left unexplained or the model is consistent with the moves.
 
     Raises:
         InvalidDataError: Too few moves.
@@ -173,9 +272,11 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
     unknown = [e for e in effects if e not in EFFECTS]
     if unknown:
         raise ConfigurationError(f'unknown effect(s) {unknown}; expected {EFFECT_NAMES}')
-    if not (math.isfinite(threshold) and max_effects >= 0 and 0 <= min_improvement < 1):
+    if not (math.isfinite(threshold) and max_effects >= 0 and 0 <= min_improvement < 1
+            and math.isfinite(tolerance) and tolerance >= 1):
         raise ConfigurationError(
-            'threshold must be finite, max_effects >= 0 and 0 <= min_improvement < 1')
+            'threshold must be finite, max_effects >= 0, 0 <= min_improvement < 1 and '
+            'tolerance >= 1')
     comp = Comparison(moves, model)
     if min_gap is None:
         min_gap = comp.noise_gap
@@ -223,11 +324,20 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
     assert first is not None
     before = comp.diagnostics(model)
     after = comp.diagnostics(current) if steps else before
+    where, where_after = localise(before), localise(after) if steps else None
+    remaining = _remaining(comp, after, where_after or where)
     head = steps[0] if steps else None
+    if head is None:
+        verdict = 'unexplained' if remaining.significant else 'consistent'
+        effect = 'none' if verdict == 'consistent' else 'unexplained'
+    else:
+        verdict = 'named' if remaining.gap <= tolerance * comp.noise_gap else 'unexplained'
+        effect = head.effect
     return DiscrepancyResult(
-        effect=head.effect if head else 'none',
+        verdict=verdict, effect=effect,
         parameters=current.effects[where_added[0]].params() if head else {},
         gap_before=comp.gap(model), gap_after=comp.gap(current), candidates=first,
         rounds=tuple(rounds), steps=tuple(steps), initial_model=model, final_model=current,
-        where=localise(before), where_after=localise(after), threshold=threshold,
-        noise_gap=comp.noise_gap, moves=moves.moves, before=before, after=after)
+        where=where, where_after=where_after or where, threshold=threshold,
+        noise_gap=comp.noise_gap, moves=moves.moves, remaining=remaining,
+        tolerance=tolerance, before=before, after=after)

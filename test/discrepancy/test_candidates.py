@@ -15,6 +15,7 @@ from galvo_sysid.model import PAPER_MODEL
 def test_hidden_effect_is_named_estimated_and_closes_the_gap(index, effect, truth, tolerance):
     result = analysed(hidden_effects((effect, truth)), seed=100 + index)
     assert result.effect == effect, [c.to_dict() for c in result.candidates[:3]]
+    assert result.verdict == 'named'
     assert set(result.parameters) == set(truth)
     for key, value in truth.items():
         assert result.parameters[key] == pytest.approx(value, rel=tolerance[key]), key
@@ -31,6 +32,7 @@ def test_hidden_effect_is_named_estimated_and_closes_the_gap(index, effect, trut
 @pytest.mark.parametrize('seed', [7, 8])
 def test_no_effect_no_false_alarm(seed):
     result = analysed((), seed=seed)
+    assert result.verdict == 'consistent'
     assert result.effect == 'none'
     assert result.parameters == {}
     assert result.steps == ()

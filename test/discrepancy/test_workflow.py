@@ -9,7 +9,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from discrepancy_cases import CASES, MOVES_PER_ANGLE, analysed, hidden_effects, measured
+from discrepancy_cases import ANGLES, CASES, MOVES_PER_ANGLE, analysed, hidden_effects, measured
+from heldout import Hidden, heldout_moves
 
 from galvo_sysid.discrepancy import (
     Comparison,
@@ -42,6 +43,7 @@ def test_two_effects_are_found_in_turn():
     effects = (('coulomb_friction', {'friction_current': 0.02}),
                ('gain_change', {'gain_ratio': 0.95}))
     result = analysed(hidden_effects(*effects), seed=21)
+    assert result.verdict == 'named'
     assert {s.effect for s in result.steps} == {'coulomb_friction', 'gain_change'}
     assert result.effect == 'gain_change'                    # the larger gap comes first
     final = result.final_model
@@ -55,6 +57,10 @@ def test_two_effects_are_found_in_turn():
 def test_json_contract():
     result = analysed(hidden_effects(CASES[9][:2]), seed=109)
     data = json.loads(json.dumps(result.to_dict(), allow_nan=False))
+    assert data['verdict'] == 'named'
+    assert data['summary'].startswith('named: gain_change')
+    assert data['remaining']['gap'] == data['gap_after']
+    assert data['remaining']['significant'] is False
     assert data['effect'] == 'gain_change'
     assert set(data['parameters']) == {'gain_ratio'}
     assert data['gap_before'] > data['gap_after'] >= 0
@@ -103,7 +109,7 @@ def test_augmented_model_drives_the_simulator(tmp_path):
 
 def test_a_drifting_mode_is_not_blamed_on_a_candidate(repo):
     """bags/drifting: omega_1 drifts during the bag, which no candidate effect is; the
-    workflow says none, shows the gap at mode 1 and points to identification."""
+    workflow says unexplained, shows the gap at mode 1 and points to identification."""
     from galvo_sysid.discrepancy.report import format_result
 
     bag = repo / 'bags' / 'drifting'
@@ -111,8 +117,40 @@ def test_a_drifting_mode_is_not_blamed_on_a_candidate(repo):
         pytest.skip('sample bag not present')
     moves, _ = read_moves(bag)
     result = find_discrepancy(moves, max_effects=1)
-    assert result.effect == 'none'
+    assert result.verdict == 'unexplained'
+    assert result.effect == 'unexplained'
+    assert result.steps == ()
     assert result.gap_before > result.noise_gap
-    band = result.where.main_bands[0]
+    band = result.remaining.where.main_bands[0]
     assert band.low < 7.108e4 / (2 * math.pi) < band.high
     assert 'galvo-sysid identify' in format_result(result)
+
+
+# --------------------------------------------------------------------------- open world
+
+
+def test_the_independent_simulator_without_an_effect_is_consistent():
+    """The held-out effects' own loop (sub-stepped, test/discrepancy/heldout.py) agrees
+    with the package's plant: without an effect the model is consistent with its moves."""
+    result = find_discrepancy(heldout_moves((), 11, angles=ANGLES, moves_per_angle=20,
+                                            independent=True), max_effects=1)
+    assert result.verdict == 'consistent'
+    assert result.effect == 'none'
+    assert result.steps == ()
+    assert not result.remaining.significant
+    assert result.sentence.startswith('consistent: the model explains the moves')
+
+
+def test_a_significant_gap_is_never_none():
+    """A torque ripple proportional to the current (no library effect): no candidate closes
+    a quarter of the gap; the verdict is unexplained, with where and how large."""
+    moves = heldout_moves((Hidden.of('commutation_ripple', r=0.03, P=0.8, phi=1.0),), 3,
+                          angles=ANGLES, moves_per_angle=20)
+    result = find_discrepancy(moves, max_effects=1)
+    assert result.verdict == 'unexplained'
+    assert result.effect == 'unexplained'
+    assert result.remaining.significant
+    assert result.remaining.gap > 3 * result.noise_gap
+    assert result.remaining.where.main_bands
+    assert result.sentence.startswith('unexplained: a gap of')
+    assert 'Hz' in result.sentence
