@@ -99,11 +99,16 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
     lines.append('where the model and the moves disagree:')
     lines.extend('  ' + line for line in result.where.summary())
     lines.append('')
-    lines.append(f'candidates (score = BIC drop; above {result.threshold:g} names the effect):')
+    lines.append(f'candidates (score = BIC drop, above {result.threshold:g}; where it acts: '
+                 f'excess in noise std, share of the excess left):')
     for c in result.candidates:
         params = _params(c.parameters, t) if c.parameters else '-'
+        local = ('' if c.effect == 'none' else
+                 f'   where it acts {c.local_excess:8.3g} sd, left {100 * c.local_left:5.3g} %'
+                 f' {"ok" if c.consistent_where_it_acts else "NO"}')
         lines.append(f'  {c.effect:<20} {c.score:>12.4g}   gap after {c.gap:7.3g}   '
-                     f'white {c.whiteness:7.3g}   {params}')
+                     f'white {c.whiteness:7.3g}{local}   {params}'
+                     + (f'   (implausible: {c.implausible})' if c.implausible else ''))
     lines.append('')
     lines.append(f'verdict: {verdict_sentence(result)}')
     if result.verdict == 'unexplained':
@@ -118,6 +123,11 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
                  result.initial_model.effects]
         lines.append('  final effects (refitted together): ' + '; '.join(
             f'{e.name} ({_params(e.params(), t)})' for e in final))
+    for s in result.tried:
+        lines.append(f'tried and taken back: {s.effect} ({_params(s.parameters, t)}), score '
+                     f'{s.score:.4g}, gap {s.gap_before:.3g} -> {s.gap_after:.3g}, but it leaves '
+                     f'{100 * s.local_left:.3g} % of the excess where it acts '
+                     f'({s.local_excess:.3g} noise std)')
     lines.append(f'gap: {result.gap_before:.3g} -> {result.gap_after:.3g}')
     if result.steps:
         lines.append('where the final model still disagrees:')

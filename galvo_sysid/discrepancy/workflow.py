@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from galvo_sysid.discrepancy.candidates import CandidateFit, _Fitter
+from galvo_sysid.discrepancy.candidates import CandidateFit, _consistent, _Fitter
 from galvo_sysid.discrepancy.compare import Comparison, Diagnostics
 from galvo_sysid.discrepancy.localise import Localisation, localise
 from galvo_sysid.errors import ConfigurationError
@@ -123,6 +123,13 @@ class Step:
         whiteness_after: Largest band excess after (noise std units).
         candidates: Every candidate of this round, best first (``none`` included).
         model: The model after the step.
+        local_excess: After the step (the effects refitted together), the residual's
+            weighted excess over the noise where this effect acts, in noise standard
+            deviations.
+        local_left: The share of the excess there that it leaves.
+        confirmed: Whether every effect added so far leaves a residual consistent with the
+            noise where it acts (a step that is not, and that no later step confirms, is
+            taken back: :attr:`DiscrepancyResult.tried`).
     """
 
     effect: str
@@ -133,6 +140,9 @@ class Step:
     whiteness_after: float
     candidates: tuple[CandidateFit, ...]
     model: PlantModel = field(repr=False, compare=False)
+    local_excess: float = 0.0
+    local_left: float = 0.0
+    confirmed: bool = True
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
@@ -141,6 +151,9 @@ class Step:
                 'gap_before': finite_or_none(self.gap_before),
                 'gap_after': finite_or_none(self.gap_after),
                 'whiteness_after': finite_or_none(self.whiteness_after),
+                'local_excess': finite_or_none(self.local_excess),
+                'local_left': finite_or_none(self.local_left),
+                'confirmed': self.confirmed,
                 'candidates': [c.to_dict() for c in self.candidates]}
 
 
@@ -174,6 +187,9 @@ class DiscrepancyResult:
         moves: Moves compared.
         remaining: The final model's gap against the noise, and where it sits.
         tolerance: Remaining gap (in noise gaps) still counted as explained by named effects.
+        tried: Steps taken back: effects that scored and closed part of the gap but left a
+            residual inconsistent with the noise where they act, and that no later effect
+            made consistent (a good score is no name).
         before: Diagnostics of the given model (for reports).
         after: Diagnostics of the final model.
     """
@@ -195,6 +211,7 @@ class DiscrepancyResult:
     moves: int
     remaining: Remaining
     tolerance: float
+    tried: tuple[Step, ...]
     before: Diagnostics = field(repr=False, compare=False)
     after: Diagnostics = field(repr=False, compare=False)
 
@@ -225,6 +242,7 @@ class DiscrepancyResult:
             'gap_after': finite_or_none(self.gap_after),
             'candidates': [c.to_dict() for c in self.candidates],
             'steps': [s.to_dict() for s in self.steps],
+            'tried': [s.to_dict() for s in self.tried],
             'where': self.where.to_dict(),
             'where_after': self.where_after.to_dict(),
             'moves': self.moves,
@@ -285,6 +303,9 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
     where_added: list[int] = []                # index of each step's effect in the model
     first: tuple[CandidateFit, ...] | None = None
     rounds: list[tuple[CandidateFit, ...]] = []
+    confirmed: tuple[PlantModel, int, list[int], dict[int, tuple[float, float]]] = (
+        model, 0, [], {})
+    step_index: list[int] = []                 # the model index of each step's effect
     for round_index in range(max_effects + 1):
         if round_index and (round_index >= max_effects or comp.gap(current) < min_gap):
             break   # enough effects, or the model explains the moves within the noise
@@ -298,10 +319,14 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
         rounds.append(ranked)
         if first is None:
             first = ranked
-        best = ranked[0]
-        relevant = best.gap <= (1.0 - min_improvement) * fits[0].gap
-        if best.effect == 'none' or best.score <= threshold or not relevant or max_effects == 0:
+        gap_now = fits[0].gap
+        eligible = [c for c in ranked if c.effect != 'none' and c.score > threshold
+                    and c.gap <= (1.0 - min_improvement) * gap_now and not c.implausible]
+        if not eligible or max_effects == 0:
             break
+        # an effect consistent with the noise where it acts first; else the best one,
+        # provisionally: it stays only if a later effect makes both consistent
+        best = next((c for c in eligible if c.consistent_where_it_acts), eligible[0])
         current = best.model
         index = (len(current.effects) - 1 if best.effect == 'unmodeled_resonance' else
                  [e.name for e in current.effects].index(best.effect))
@@ -313,10 +338,20 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
                     if progress is not None:
                         progress(f'step {round_index + 1}: refitting {current.effects[i].name}')
                     current = _Fitter(comp, current).refine(i)
+        checks = {i: _Fitter(comp, current).where_it_acts(i) for i in where_added}
+        ok = all(_consistent(*checks[i]) for i in where_added)
+        excess, left = checks[index]
+        step_index.append(index)
         steps.append(Step(effect=best.effect, parameters=current.effects[index].params(),
-                          score=best.score, gap_before=fits[0].gap, gap_after=comp.gap(current),
+                          score=best.score, gap_before=gap_now, gap_after=comp.gap(current),
                           whiteness_after=comp.whiteness(current), candidates=ranked,
-                          model=current))
+                          model=current, local_excess=excess, local_left=left, confirmed=ok))
+        if ok:
+            confirmed = (current, len(steps), list(where_added), checks)
+    current, kept, where_added, checks = confirmed
+    tried = tuple(steps[kept:])
+    steps = [replace(s, confirmed=True, local_excess=checks[i][0], local_left=checks[i][1])
+             for s, i in zip(steps[:kept], step_index, strict=False)]
     if steps:
         names = ', '.join(str(current.effects[i]) for i in where_added)
         current = replace(current, description=f'{model.description or "model"} + found '
@@ -340,4 +375,4 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
         rounds=tuple(rounds), steps=tuple(steps), initial_model=model, final_model=current,
         where=where, where_after=where_after or where, threshold=threshold,
         noise_gap=comp.noise_gap, moves=moves.moves, remaining=remaining,
-        tolerance=tolerance, before=before, after=after)
+        tolerance=tolerance, tried=tried, before=before, after=after)

@@ -16,6 +16,7 @@ def test_hidden_effect_is_named_estimated_and_closes_the_gap(index, effect, trut
     result = analysed(hidden_effects((effect, truth)), seed=100 + index)
     assert result.effect == effect, [c.to_dict() for c in result.candidates[:3]]
     assert result.verdict == 'named'
+    assert result.tried == ()
     assert set(result.parameters) == set(truth)
     for key, value in truth.items():
         assert result.parameters[key] == pytest.approx(value, rel=tolerance[key]), key

@@ -61,6 +61,7 @@ def test_json_contract():
     assert data['summary'].startswith('named: gain_change')
     assert data['remaining']['gap'] == data['gap_after']
     assert data['remaining']['significant'] is False
+    assert data['tried'] == []
     assert data['effect'] == 'gain_change'
     assert set(data['parameters']) == {'gain_ratio'}
     assert data['gap_before'] > data['gap_after'] >= 0
@@ -136,7 +137,7 @@ def test_the_independent_simulator_without_an_effect_is_consistent():
                                             independent=True), max_effects=1)
     assert result.verdict == 'consistent'
     assert result.effect == 'none'
-    assert result.steps == ()
+    assert result.steps == result.tried == ()
     assert not result.remaining.significant
     assert result.sentence.startswith('consistent: the model explains the moves')
 
@@ -154,3 +155,55 @@ def test_a_significant_gap_is_never_none():
     assert result.remaining.where.main_bands
     assert result.sentence.startswith('unexplained: a gap of')
     assert 'Hz' in result.sentence
+
+
+def test_an_effect_outside_the_library_is_unexplained_not_named():
+    """A hardening spring (torque ~ angle^3) is no library effect: the linear pivot spring
+    scores well and closes more than half of the gap, but leaves structure where it acts,
+    so it is taken back; the verdict says where the gap sits and how large it is."""
+    from galvo_sysid.discrepancy.report import format_result
+
+    moves = heldout_moves((Hidden.of('cubic_spring', kappa=3e-3),), 3, angles=ANGLES,
+                          moves_per_angle=20)
+    result = find_discrepancy(moves, max_effects=2)
+    assert result.verdict == 'unexplained'
+    assert result.effect == 'unexplained'
+    assert result.steps == ()
+    assert result.final_model == PAPER_MODEL
+    tried = result.tried[0]
+    assert tried.effect == 'pivot_stiffness'
+    assert tried.gap_after < 0.5 * tried.gap_before       # a good score, no name
+    assert tried.local_left > 0.1
+    remaining = result.remaining
+    assert remaining.significant
+    assert remaining.gap == result.gap_before > 3 * result.noise_gap
+    assert remaining.significance > 100
+    assert remaining.residual_rms > 10 * remaining.floor_rms
+    assert remaining.where.main_bands
+    assert remaining.where.size_trend.startswith('grows')   # a spring acts on large moves
+    text = format_result(result)
+    assert 'verdict: unexplained: a gap of' in text
+    assert 'that no library effect explains: at ' in text
+    assert 'tried and taken back: pivot_stiffness' in text
+    data = json.loads(json.dumps(result.to_dict(), allow_nan=False))
+    assert data['verdict'] == 'unexplained'
+    assert data['effect'] != 'none'
+    assert data['remaining']['significant'] is True
+    assert data['remaining']['where']['main_bands']
+    assert data['tried'][0]['effect'] == 'pivot_stiffness'
+
+
+def test_a_mode_of_the_model_that_is_off_gets_no_resonance():
+    """Mode 1 of the scanner 0.5 % off its model: a resonance fitted at the model's own mode
+    is implausible (the mode is off, not missing); identification is pointed to."""
+    from galvo_sysid.discrepancy.report import format_result
+
+    moves = heldout_moves((Hidden.of('mode_shift', mode=1, relative=0.005),), 3,
+                          angles=ANGLES, moves_per_angle=20)
+    result = find_discrepancy(moves, max_effects=1)
+    assert result.verdict == 'unexplained'
+    assert result.steps == result.tried == ()
+    resonance = next(c for c in result.candidates if c.effect == 'unmodeled_resonance')
+    assert resonance.score > 1000
+    assert "the model's own mode 1" in resonance.implausible
+    assert 'galvo-sysid identify' in format_result(result)
