@@ -30,14 +30,11 @@ measured encoder. The gap is the RMS of the mean residual that the model leaves 
 over all frequencies and target angles, in units of the noise floor that the move-to-move
 scatter gives (0: the model explains the moves within the noise).
 
-Candidate effects, each fitted to the data and scored by the drop of the Bayesian
-information criterion (the best one above --threshold is added, then the search repeats):
-  input_delay          delay [s], the total equivalent input delay
-  unmodeled_resonance  natural_frequency [rad/s], damping_ratio, residue [deg/(A s^2)]
-  coulomb_friction     friction_current [A]
-  pivot_stiffness      natural_frequency [rad/s]
-  gain_change          gain_ratio
-  current_saturation   current_limit [A]
+Candidate effects (the effect registry's), each fitted to the data and scored by the drop
+of the Bayesian information criterion (the best one above --threshold that closes a quarter
+of the gap, leaves a residual consistent with the noise where it acts and has plausible
+parameters is added, then the search repeats):
+{effects}
 
 Every run ends in a verdict: named (the effects added explain the gap, with their
 parameters), unexplained (a gap significant against the noise floor remains that no
@@ -65,13 +62,26 @@ examples:
 exit codes: 0 ok (whatever was found), 1 bad input, 2 usage error"""
 
 
+def _description() -> str:
+    """The help text with the registry's effects and their parameters."""
+    from galvo_sysid.model.effects import EFFECTS
+
+    lines = []
+    for name, kind in EFFECTS.items():
+        params = ', '.join(f'{p.name} [{p.unit}]' if p.unit else p.name
+                           for p in kind.parameters)
+        lines.append(f'  {name:<21}{params}')
+    return _DESCRIPTION.format(effects='\n'.join(lines))
+
+
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``discrepancy`` subcommand to an argparse subparsers object."""
     from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD, DEFAULT_TOLERANCE
     from galvo_sysid.model.effects import EFFECT_NAMES
 
     p: argparse.ArgumentParser = subparsers.add_parser(
-        'discrepancy', formatter_class=HelpFormatter, description=_DESCRIPTION, epilog=_EPILOG,
+        'discrepancy', formatter_class=HelpFormatter, description=_description(),
+        epilog=_EPILOG,
         help='where a plant model and a bag disagree, and which effect is missing')
     _arguments(p, DEFAULT_THRESHOLD, EFFECT_NAMES, DEFAULT_TOLERANCE)
     return p
@@ -160,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD, DEFAULT_TOLERANCE
     from galvo_sysid.model.effects import EFFECT_NAMES
 
-    parser = argparse.ArgumentParser(prog='galvo-sysid discrepancy', description=_DESCRIPTION,
+    parser = argparse.ArgumentParser(prog='galvo-sysid discrepancy', description=_description(),
                                      epilog=_EPILOG, formatter_class=HelpFormatter)
     _arguments(parser, DEFAULT_THRESHOLD, EFFECT_NAMES, DEFAULT_TOLERANCE)
     args = parser.parse_args(argv)

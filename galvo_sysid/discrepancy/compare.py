@@ -188,6 +188,7 @@ class Comparison:
         self.mean_ext = np.stack([self.ext[i].mean(axis=0) for i in self.index])
         self._sims: dict[Physics, PlantSimulator] = {}
         self._pulses: dict[tuple[Any, ...], tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+        self._carries: dict[tuple[Any, ...], NDArray[np.float64]] = {}
         n = moves.samples
         length = _analysed(n)                     # second differences analysed
         self.n_bins = length // 2 - 1
@@ -247,14 +248,23 @@ class Comparison:
         length = ext.shape[1]
         if length == n or not physics.residues:
             return np.zeros_like(current)
-        h_u, h_d = self._pulse(physics)
-        out = (_fft_conv(ext - hold, h_u, length - n, length)
-               - _fft_conv(current - hold, h_u[:n], 0, n))
-        if math.isfinite(physics.current_limit):
-            d = clip_correction(ext, physics, sample_period=self.moves.sample_period)
-            out += (_fft_conv(d, h_d, length - n, length)
-                    - _fft_conv(d[:, length - n:], h_d[:n], 0, n))
-        return out
+        held = np.asarray(hold, dtype=float)
+        key = (physics.residues, physics.natural_frequencies, physics.damping_ratios,
+               physics.gain_ratio, physics.pure_delay, physics.lag_time_constant,
+               physics.current_limit, ext.shape, current.shape, held.shape, held.tobytes())
+
+        def make() -> NDArray[np.float64]:
+            h_u, h_d = self._pulse(physics)
+            out = (_fft_conv(ext - hold, h_u, length - n, length)
+                   - _fft_conv(current - hold, h_u[:n], 0, n))
+            if math.isfinite(physics.current_limit):
+                d = clip_correction(ext, physics, sample_period=self.moves.sample_period)
+                out += (_fft_conv(d, h_d, length - n, length)
+                        - _fft_conv(d[:, length - n:], h_d[:n], 0, n))
+            return out
+        # cached: the candidates that leave the modes, the input dynamics and the limit alone
+        # (friction, viscous friction, the encoder's error...) share it
+        return _cached(self._carries, key, make)
 
     def simulate(self, model: PlantModel | Physics, *, per_move: bool = False) -> NDArray[
             np.float64]:
@@ -269,9 +279,12 @@ class Comparison:
             hold = sim.holding_current(self.mean_start)[:, None]
             return sim.simulate(self.mean_current, self.mean_start) + self.carry(
                 phys, self.mean_ext, self.mean_current, hold=hold)
-        hold = sim.holding_current(self.start)[:, None]
-        y = sim.simulate(self.moves.current, self.start) + self.carry(
-            phys, self.ext, self.moves.current, hold=hold)
+        hold = sim.holding_current(sim.true_start(self.start))[:, None]
+        carry = self.carry(phys, self.ext, self.moves.current, hold=hold)
+        if phys.encoder_error_amplitude:    # the encoder reads the carried ringing too
+            y = sim.simulate(self.moves.current, self.start, extra=carry)
+        else:
+            y = sim.simulate(self.moves.current, self.start) + carry
         if per_move:
             return y
         return np.stack([y[i].mean(axis=0) for i in self.index])

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from galvo_sysid.jsonsafe import json_safe
+from galvo_sysid.model.effects import EFFECTS
 from galvo_sysid.model.files import save_model
 
 if TYPE_CHECKING:
@@ -37,19 +38,20 @@ if TYPE_CHECKING:
 
 __all__ = ['format_result', 'verdict_sentence', 'write_report']
 
-_UNITS = {'delay': 's', 'natural_frequency': 'rad/s', 'damping_ratio': '', 'residue':
-          'deg/(A s^2)', 'friction_current': 'A', 'gain_ratio': '', 'current_limit': 'A'}
-
-
-def _params(params: dict[str, float], sample_period: float) -> str:
+def _params(params: dict[str, float], sample_period: float, effect: str) -> str:
+    """An effect's parameters with their units (the registry's) and a readable form."""
+    kind = EFFECTS.get(effect)
+    units = {p.name: p.unit for p in kind.parameters} if kind is not None else {}
     parts = []
     for k, v in params.items():
-        unit = _UNITS.get(k, '')
+        unit = units.get(k, '')
         text = f'{k}={v:.4g}' + (f' {unit}' if unit else '')
         if k == 'delay':
             text += f' ({v / sample_period:.3f} tau)'
         if k == 'natural_frequency':
             text += f' ({v / (2 * math.pi):.4g} Hz)'
+        if k == 'bandwidth' and v > 0:
+            text += f' (lag {1 / (2 * math.pi * v) / sample_period:.3f} tau)'
         parts.append(text)
     return ', '.join(parts)
 
@@ -58,7 +60,7 @@ def _added(result: DiscrepancyResult) -> str:
     """The effects the workflow added, with their final parameters."""
     t = result.initial_model.sample_period
     added = [e for e in result.final_model.effects if e not in result.initial_model.effects]
-    return ' and '.join(f'{e.name} ({_params(e.params(), t)})' for e in added)
+    return ' and '.join(f'{e.name} ({_params(e.params(), t, e.name)})' for e in added)
 
 
 def verdict_sentence(result: DiscrepancyResult) -> str:
@@ -102,7 +104,7 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
     lines.append(f'candidates (score = BIC drop, above {result.threshold:g}; where it acts: '
                  f'excess in noise std, share of the excess left):')
     for c in result.candidates:
-        params = _params(c.parameters, t) if c.parameters else '-'
+        params = _params(c.parameters, t, c.effect) if c.parameters else '-'
         local = ('' if c.effect == 'none' else
                  f'   where it acts {c.local_excess:8.3g} sd, left {100 * c.local_left:5.3g} %'
                  f' {"ok" if c.consistent_where_it_acts else "NO"}')
@@ -115,17 +117,18 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
         lines.extend(_mode_hint(result))
     if result.steps:
         head = 'found' if result.verdict == 'named' else 'added, explaining part of the gap'
-        lines.append(f'{head}: {result.effect} ({_params(result.parameters, t)})')
+        lines.append(f'{head}: {result.effect} ({_params(result.parameters, t, result.effect)})')
         for i, s in enumerate(result.steps, start=1):
-            lines.append(f'  step {i}: {s.effect} ({_params(s.parameters, t)}), score '
+            lines.append(f'  step {i}: {s.effect} ({_params(s.parameters, t, s.effect)}), score '
                          f'{s.score:.4g}, gap {s.gap_before:.3g} -> {s.gap_after:.3g}')
         final = [e for e in result.final_model.effects if e not in
                  result.initial_model.effects]
         lines.append('  final effects (refitted together): ' + '; '.join(
-            f'{e.name} ({_params(e.params(), t)})' for e in final))
+            f'{e.name} ({_params(e.params(), t, e.name)})' for e in final))
     for s in result.tried:
-        lines.append(f'tried and taken back: {s.effect} ({_params(s.parameters, t)}), score '
-                     f'{s.score:.4g}, gap {s.gap_before:.3g} -> {s.gap_after:.3g}, but it leaves '
+        params = _params(s.parameters, t, s.effect)
+        lines.append(f'tried and taken back: {s.effect} ({params}), score {s.score:.4g}'
+                     f', gap {s.gap_before:.3g} -> {s.gap_after:.3g}, but it leaves '
                      f'{100 * s.local_left:.3g} % of the excess where it acts '
                      f'({s.local_excess:.3g} noise std)')
     lines.append(f'gap: {result.gap_before:.3g} -> {result.gap_after:.3g}')
