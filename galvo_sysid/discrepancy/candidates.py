@@ -45,7 +45,7 @@ if TYPE_CHECKING:
 
     from galvo_sysid.discrepancy.compare import Comparison
 
-__all__ = ['LOCAL_LEFT', 'LOCAL_SIGMA', 'MAX_DAMPING', 'CandidateFit']
+__all__ = ['LOCAL_LEFT', 'LOCAL_LEFT_EXPLAINED', 'LOCAL_SIGMA', 'MAX_DAMPING', 'CandidateFit']
 
 LOCAL_SIGMA = 5.0
 """An effect's residual is consistent with the noise where it acts if its weighted excess
@@ -58,6 +58,13 @@ noise but is a small fraction of what the effect explained; right effects leave 
 0.5 % on simulated data, also from the independent simulator of test/discrepancy/heldout.py,
 wrong ones 2 % to 100 %: an input delay standing in for a narrower amplifier 3-5 %, a pivot
 spring and a long cogging period together for a hardening spring 1-2 %)."""
+
+LOCAL_LEFT_EXPLAINED = 0.05
+"""An effect that brings the whole gap within the verdict's tolerance (``named``) may leave up
+to this share where it acts: Coulomb friction of 10 mA leaves 1.3-1.4 % there in one case of
+five (its stick-slip follows the current noise, which the record does not hold) while the
+whole residual is at the noise gap. Wrong candidates that pass the plausibility checks leave
+more than 2 noise gaps overall."""
 
 MAX_DAMPING = 0.25
 """Largest damping ratio of a plausible unmodelled resonance (fits that pass for other
@@ -127,6 +134,13 @@ class CandidateFit:
 def _consistent(excess: float, left: float) -> bool:
     """The test of :attr:`CandidateFit.consistent_where_it_acts`."""
     return excess <= LOCAL_SIGMA or left <= LOCAL_LEFT
+
+
+def _acceptable(excess: float, left: float, gap: float, explained: float) -> bool:
+    """Whether an effect is consistent with the noise where it acts, for the workflow: as
+    :func:`_consistent`, or leaving at most :data:`LOCAL_LEFT_EXPLAINED` there when the gap
+    with it is at most ``explained`` (the verdict's tolerance)."""  # noqa: D205, D209
+    return _consistent(excess, left) or (gap <= explained and left <= LOCAL_LEFT_EXPLAINED)
 
 
 _PERIODIC = ('cogging_torque', 'encoder_cyclic_error')

@@ -8,7 +8,8 @@ The result is a :class:`~galvo_sysid.discrepancy.workflow.DiscrepancyResult`.
   after (every effect found added), with the noise floor of the mean,
 - ``moves.png``: measured vs simulated mean moves and their residuals before/after, with the
   residual's noise floor (standard error of the mean),
-- ``candidates.png``: the candidates' scores (BIC drop) of every round, with the threshold,
+- ``candidates.png``: the candidates' scores (BIC drop) of every round, with the threshold
+  (the effect added green, one tried and taken back orange),
 - ``where.png``: the excess over the noise by frequency band, by phase of the move and by
   move size, before and after,
 - ``summary.txt`` (:func:`format_result`), ``result.json`` (the ``--json`` object) and
@@ -26,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from galvo_sysid.discrepancy.candidates import _acceptable
 from galvo_sysid.jsonsafe import json_safe
 from galvo_sysid.model.effects import EFFECTS
 from galvo_sysid.model.files import save_model
@@ -103,11 +105,13 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
     lines.append('')
     lines.append(f'candidates (score = BIC drop, above {result.threshold:g}; where it acts: '
                  f'excess in noise std, share of the excess left):')
+    explained = result.tolerance * result.noise_gap
     for c in result.candidates:
         params = _params(c.parameters, t, c.effect) if c.parameters else '-'
+        ok = _acceptable(c.local_excess, c.local_left, c.gap, explained)
         local = ('' if c.effect == 'none' else
                  f'   where it acts {c.local_excess:8.3g} sd, left {100 * c.local_left:5.3g} %'
-                 f' {"ok" if c.consistent_where_it_acts else "NO"}')
+                 f' {"ok" if ok else "NO"}')
         lines.append(f'  {c.effect:<20} {c.score:>12.4g}   gap after {c.gap:7.3g}   '
                      f'white {c.whiteness:7.3g}{local}   {params}'
                      + (f'   (implausible: {c.implausible})' if c.implausible else ''))
@@ -249,19 +253,23 @@ def _plot_candidates(result: DiscrepancyResult, path: Path) -> None:
         ax = axes[0][i]
         names = [c.effect for c in cands]
         scores = [c.score for c in cands]
+        added = [*result.steps, *result.tried]      # one per round that added an effect
+        step = added[i] if i < len(added) else None
         accepted = i < len(result.steps)
-        colors = ['tab:green' if j == 0 and accepted else 'tab:gray'
-                  for j in range(len(scores))]
+        color = 'tab:green' if accepted else 'tab:orange'
+        colors = [color if step is not None and c.effect == step.effect else 'tab:gray'
+                  for c in cands]
         ax.barh(range(len(names)), scores, color=colors)
         ax.set_yticks(range(len(names)), names, fontsize=8)
         ax.invert_yaxis()
         ax.set_xscale('symlog', linthresh=10)
         ax.axvline(result.threshold, color='tab:red', ls='--', lw=1, label='threshold')
         ax.set_xlabel('score (BIC drop)', fontsize=8)
-        if accepted:
-            title = f'round {i + 1}: {result.steps[i].effect} added'
+        if step is not None:
+            title = (f'round {i + 1}: {step.effect} added' if accepted else
+                     f'round {i + 1}: {step.effect} tried, taken back')
         elif cands[0].effect != 'none' and cands[0].score > result.threshold:
-            title = f'round {i + 1}: nothing added (closes < 1/4 of the gap)'
+            title = f'round {i + 1}: nothing added (no candidate passes the checks)'
         else:
             title = f'round {i + 1}: nothing added'
         ax.set_title(title, fontsize=9)

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from galvo_sysid.discrepancy.candidates import CandidateFit, _consistent, _Fitter
+from galvo_sysid.discrepancy.candidates import CandidateFit, _acceptable, _Fitter
 from galvo_sysid.discrepancy.compare import Comparison, Diagnostics
 from galvo_sysid.discrepancy.localise import Localisation, localise
 from galvo_sysid.errors import ConfigurationError
@@ -298,6 +298,7 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
     comp = Comparison(moves, model)
     if min_gap is None:
         min_gap = comp.noise_gap
+    explained = tolerance * comp.noise_gap          # a gap the verdict counts as explained
     current = model
     steps: list[Step] = []
     where_added: list[int] = []                # index of each step's effect in the model
@@ -326,7 +327,8 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
             break
         # an effect consistent with the noise where it acts first; else the best one,
         # provisionally: it stays only if a later effect makes both consistent
-        best = next((c for c in eligible if c.consistent_where_it_acts), eligible[0])
+        best = next((c for c in eligible if _acceptable(c.local_excess, c.local_left, c.gap,
+                                                         explained)), eligible[0])
         current = best.model
         index = (len(current.effects) - 1 if best.effect == 'unmodeled_resonance' else
                  [e.name for e in current.effects].index(best.effect))
@@ -339,11 +341,12 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
                         progress(f'step {round_index + 1}: refitting {current.effects[i].name}')
                     current = _Fitter(comp, current).refine(i)
         checks = {i: _Fitter(comp, current).where_it_acts(i) for i in where_added}
-        ok = all(_consistent(*checks[i]) for i in where_added)
+        gap_after = comp.gap(current)
+        ok = all(_acceptable(*checks[i], gap_after, explained) for i in where_added)
         excess, left = checks[index]
         step_index.append(index)
         steps.append(Step(effect=best.effect, parameters=current.effects[index].params(),
-                          score=best.score, gap_before=gap_now, gap_after=comp.gap(current),
+                          score=best.score, gap_before=gap_now, gap_after=gap_after,
                           whiteness_after=comp.whiteness(current), candidates=ranked,
                           model=current, local_excess=excess, local_left=left, confirmed=ok))
         if ok:
