@@ -36,11 +36,13 @@ $(VENV)/.pkg-stamp: $(VENV)/.msgs-stamp setup.py setup.cfg package.xml
 demo: setup
 	$(VPY) -m galvo_sysid.field.demo
 
+# Two worker processes (pytest-xdist), each module's tests on one of them; each worker has
+# a ROS domain of its own (test/conftest.py).
 test: setup
-	$(VPY) -m pytest -q test
+	$(VPY) -m pytest -q -n 2 --dist loadscope test
 
 lint: setup
-	$(VENV)/bin/ruff check galvo_sysid test benchmarks tools
+	$(VENV)/bin/ruff check galvo_sysid test benchmarks tools launch
 	$(VENV)/bin/mypy galvo_sysid
 
 # Speed and accuracy figures (tables on stdout; latest output in docs/benchmarks.md).

@@ -18,9 +18,20 @@ if TYPE_CHECKING:
 REPO = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
 
+
+def _domain_id() -> int:
+    """A ROS domain of this run's own: one per pytest-xdist worker (``gw0``, ``gw1``, ...) of
+    one run, so that the workers' nodes never see each other; 1-200 (Linux allows up to 232)."""
+    worker = os.environ.get('PYTEST_XDIST_WORKER', '')
+    if worker.startswith('gw') and worker[2:].isdigit():
+        # the workers share their parent, the run's controller
+        return 1 + (os.getppid() % 40) * 5 + int(worker[2:]) % 5
+    return 1 + (os.getpid() % 40) * 5
+
+
 # Set before any test (and every child process) touches rclpy.
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
+os.environ.setdefault('ROS_DOMAIN_ID', str(_domain_id()))
 os.environ.setdefault('ROS_LOG_DIR', tempfile.mkdtemp(prefix='galvo_sysid_roslog_'))
 
 

@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model import REFERENCE_MODEL, ModalModel
-from galvo_sysid.monitor.drift import DriftMonitor
+from galvo_sysid.monitor.drift import DriftMonitor, _Point, _weighted_line
+from galvo_sysid.monitor.parameters import WATCHDOG_PARAMETERS
 from galvo_sysid.monitor.tolerances import (
     DEFAULT_KIND_TOLERANCES,
     DEFAULT_NOISE_FLOOR,
@@ -25,6 +26,7 @@ from galvo_sysid.monitor.verdict import (
     STALE,
     STATUS_FAILED,
     STATUS_MISMATCH,
+    STATUS_NAMES,
     WARN,
 )
 
@@ -342,3 +344,115 @@ def test_a_result_that_did_not_match_the_model_is_a_mismatch_never_drift() -> No
     assert 'identification failed: singular Jacobian' in failed.message
     back = json.loads(json.dumps(v.to_dict(), allow_nan=False))
     assert back['level'] == 'MISMATCH'
+
+
+def test_a_tolerance_tighter_than_the_data_resolve_is_said() -> None:
+    # zeta_2 identified with a 10 % std against a 20 % tolerance: 3 std = 30 % > 20 %
+    v = DriftMonitor().assess(result(rel_std={'zeta_2': 0.1}), window_index=0)
+    assert v.level == OK
+    assert v.unresolvable == ('zeta_2',)
+    assert 'tolerance tighter than the data resolve (zeta_2: 3 std = 30 % > 20 %)' in v.message
+    assert json.loads(json.dumps(v.to_dict()))['tolerance_unresolvable'] == ['zeta_2']
+    assert DriftMonitor().assess(result(), window_index=0).unresolvable == ()
+
+
+# -- what the mutation run of tools/mutate.py found untested -------------
+
+CHECKED_OPTIONS = ('warn_fraction', 'n_sigma', 'trend_sigma', 'trend_fraction',
+                   'step_fraction', 'min_fit_percent')
+
+
+def test_options_are_accepted_over_their_whole_range_and_refused_beyond() -> None:
+    """The monitor takes every value the watchdog's parameters allow, the ends included."""
+    specs = {s.name: s for s in WATCHDOG_PARAMETERS}
+    for name in CHECKED_OPTIONS:
+        low, high = specs[name].low, specs[name].high
+        assert low is not None
+        assert high is not None
+        for value in (low, high):
+            DriftMonitor(**{name: float(value)})
+        for value in (math.nextafter(low, -math.inf), math.nextafter(high, math.inf)):
+            with pytest.raises(ConfigurationError, match=name):
+                DriftMonitor(**{name: value})
+
+
+def test_a_status_the_monitor_does_not_know_is_a_mismatch_naming_it() -> None:
+    for status in (len(STATUS_NAMES), 200, -1):
+        v = DriftMonitor().assess(result(), window_index=0, status=status)
+        assert v.level == MISMATCH
+        assert f'identification status {status}' in v.message
+
+
+def test_a_fit_exactly_at_min_fit_percent_is_good() -> None:
+    mon = DriftMonitor(min_fit_percent=90.0)
+    assert mon.assess(result(fit=90.0), window_index=0).level == OK
+    v = mon.assess(result(fit=math.nextafter(90.0, 0.0)), window_index=1)
+    assert v.level == WARN
+    assert 'poor fit' in v.message
+
+
+def test_poor_fit_windows_never_enter_the_trend_history() -> None:
+    """A drift seen only in poorly fitting windows is no trend, and good windows after them
+    start from an empty history: the first slope needs three good windows."""
+    mon = DriftMonitor(min_fit_percent=95.0, warn_fraction=0.95)
+    i_omega = NAMES.index('omega_1')
+    for i in range(6):
+        v = mon.assess(result({'omega_1': -0.001 * (i + 1)}, fit=60.0), window_index=i)
+        assert 'drifting' not in v.message
+        assert all(math.isnan(x) for x in v.trend_per_window)
+    for i in range(6, 9):
+        v = mon.assess(result({'omega_1': -0.001 * (i + 1)}), window_index=i)
+        assert math.isnan(v.trend_per_window[i_omega]) == (i < 8), i
+
+
+def test_an_unresolved_mode_does_not_stop_the_trend_test_of_the_others() -> None:
+    """As test_drift_building_up_is_flagged_before_the_tolerance_is_crossed, with mode 3
+    unresolved in every window: omega_1's drift is still flagged, by the trend test."""
+    for seed in range(5):
+        mon = DriftMonitor(warn_fraction=0.95)
+        first = None
+        for i, r in enumerate(drifting_sequence(-0.002, 8, seed)):
+            v = mon.assess(replace(r, resolved=(True, True, False)), window_index=i)
+            if 'omega_1 drifting' in v.message:
+                first = i
+                break
+        assert first is not None, seed
+        assert first <= 3, seed
+
+
+@pytest.mark.parametrize('min_windows', [3, 5])
+def test_the_trend_test_speaks_once_it_has_trend_min_windows(min_windows: int) -> None:
+    """A clean drift of 0.15 % per window (1 % tolerance, warnings from 95 % of it only):
+    flagged as drifting at the trend_min_windows-th window, not a window later."""
+    mon = DriftMonitor(warn_fraction=0.95, trend_min_windows=min_windows)
+    first = None
+    for i in range(8):
+        v = mon.assess(result({'omega_1': -0.0015 * (i + 1)}), window_index=i)
+        if 'omega_1 drifting' in v.message:
+            first = i
+            break
+    assert first == min_windows - 1
+
+
+@pytest.mark.parametrize('scatter', [0.1, 3.0])
+@pytest.mark.parametrize('sigma_scale', [1e-3, 5.0])
+def test_the_trend_line_is_weighted_least_squares_with_its_standard_error(
+        scatter: float, sigma_scale: float) -> None:
+    """_weighted_line against numpy's weighted polyfit: slope, value at the last window and
+    the slope's standard error from the sigmas, widened by the residual scatter where that is
+    larger than they explain (scatter 3) and not narrowed where smaller (scatter 0.1)."""
+    rng = np.random.default_rng(16)
+    n = 6
+    x = np.arange(4, 4 + n, dtype=float)
+    sigma = sigma_scale * rng.uniform(0.5, 2.0, n)
+    d = 0.01 * x + scatter * sigma * rng.standard_normal(n)
+    fitted = _weighted_line([_Point(int(xi), float(di), float(si))
+                             for xi, di, si in zip(x, d, sigma, strict=True)])
+    assert fitted is not None
+    slope, se, now = fitted
+    coef, cov = np.polyfit(x, d, 1, w=1 / sigma, cov='unscaled')
+    chi2 = float(np.sum(((d - np.polyval(coef, x)) / sigma) ** 2)) / (n - 2)
+    assert (chi2 > 1) == (scatter > 1)
+    assert slope == pytest.approx(coef[0], rel=1e-9)
+    assert se == pytest.approx(math.sqrt(max(1.0, chi2) * cov[0, 0]), rel=1e-9)
+    assert now == pytest.approx(np.polyval(coef, x[-1]), rel=1e-9)

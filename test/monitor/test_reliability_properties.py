@@ -33,13 +33,18 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from galvo_sysid.errors import GalvoSysidError, InvalidDataError
-from galvo_sysid.ident.arx import fit_arx
+from galvo_sysid.errors import (
+    ConfigurationError,
+    GalvoSysidError,
+    InvalidDataError,
+    ModelMismatchError,
+)
+from galvo_sysid.ident.arx import fit_arx, min_data_length
 from galvo_sysid.ident.delay import estimate_delay
 from galvo_sysid.ident.identify import identify_window
 from galvo_sysid.ident.paper import paper_pipeline
 from galvo_sysid.ident.pool import pool_results
-from galvo_sysid.ident.preprocess import validate_records
+from galvo_sysid.ident.preprocess import MIN_ANGLE_SPAN, validate_records
 from galvo_sysid.ident.result import IdentificationResult
 from galvo_sysid.interfaces.messages import move_half_from_msg, result_from_msg
 from galvo_sysid.model import REFERENCE_MODEL
@@ -365,12 +370,112 @@ def _typed_or_ok(call: Any, *args: Any, **kwargs: Any) -> Any:
     return out
 
 
+METHODS = ('paper-A', 'paper-B', 'refined')
+MIN_SAMPLES = min_data_length(15, 15)
+"""Shortest record validation accepts for the default ARX(15, 15) (75 samples)."""
+
+
+@st.composite
+def valid_windows(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray]:
+    """(M, N) current and encoder arrays that validation accepts (finite, one shape, long
+    enough, a current and a move), otherwise arbitrary: part of a simulated window at any
+    scale, with arbitrary values added or instead; a flat encoder gets a 3e-3 deg ramp and an
+    all-zero current one non-zero sample, so that every drawn window is valid."""
+    base_cur, base_enc = _base_window()
+    m = draw(st.integers(2, base_cur.shape[0]))
+    n = draw(st.integers(MIN_SAMPLES, 200))
+    start = draw(st.integers(0, base_cur.shape[1] - n))
+    cur = base_cur[:m, start: start + n] * 10.0 ** draw(st.floats(-6, 6))
+    enc = base_enc[:m, start: start + n] * 10.0 ** draw(st.floats(-6, 6))
+    arbitrary = hnp.arrays(np.float64, (m, n), elements=st.floats(-1e9, 1e9))
+    mix = draw(st.sampled_from(['as simulated', 'plus arbitrary', 'arbitrary']))
+    if mix == 'plus arbitrary':
+        cur, enc = cur + draw(arbitrary), enc + draw(arbitrary)
+    elif mix == 'arbitrary':
+        cur, enc = draw(arbitrary), draw(arbitrary)
+    if not np.any(cur):
+        cur[0, n // 2] = 1.0
+    if np.ptp(np.mean(enc - enc[:, :1], axis=0)) < MIN_ANGLE_SPAN:
+        enc = enc + np.linspace(0.0, 3 * MIN_ANGLE_SPAN, n)
+    event(f'window: {mix}')
+    return cur, enc
+
+
+@examples(60)
+@given(valid_windows(), st.sampled_from(METHODS))
+def test_identify_window_on_arbitrary_valid_windows(window: tuple[np.ndarray, np.ndarray],
+                                                    method: str) -> None:
+    """Arbitrary numbers in a valid window reach the fits: a result or a typed error."""
+    cur, enc = window
+    validate_records(cur, enc)  # the input is valid: what follows is the fit's doing
+    result = _typed_or_ok(identify_window, cur, enc, sample_period=DT, method=method,
+                          jackknife_groups=2 if method != 'refined' else 10)
+    if result is not None:
+        assert isinstance(result, IdentificationResult)
+        assert result.moves + len(result.set_aside) == cur.shape[0]
+
+
+INVALID = ('not numeric', 'none', 'one dimension', 'three dimensions', 'shapes differ',
+           'one record', 'too short', 'nan everywhere', 'inf everywhere', 'zero current',
+           'flat encoder', 'period of another scanner', 'zero period', 'negative period',
+           'nan period', 'infinite period')
+"""Ways a window is invalid, each with the typed error identify_window must raise."""
+
+
+def _expected_error(fault: str) -> type[GalvoSysidError]:
+    if fault == 'period of another scanner':
+        return ModelMismatchError
+    if fault.endswith('period'):
+        return ConfigurationError
+    return InvalidDataError
+
+
 @examples(200)
-@given(weird_arrays, weird_arrays, periods, st.sampled_from(['paper-A', 'paper-B', 'refined']))
-def test_identify_window_on_arbitrary_arrays(current: Any, encoder: Any, period: float,
-                                             method: str) -> None:
-    _typed_or_ok(identify_window, current, encoder, sample_period=period, method=method,
-                 jackknife_groups=2 if method != 'refined' else 10)
+@given(valid_windows(), st.sampled_from(INVALID), st.sampled_from(METHODS), st.data())
+def test_identify_window_refuses_invalid_input_with_a_typed_error(
+        window: tuple[np.ndarray, np.ndarray], fault: str, method: str,
+        data: st.DataObject) -> None:
+    """A valid window spoilt in one way that makes it invalid: the typed error of that
+    fault with a message, never a result and never another exception."""
+    cur, enc = window
+    cur_in: Any = cur
+    enc_in: Any = enc
+    period = DT
+    m, n = cur.shape
+    if fault == 'not numeric':
+        cur_in = data.draw(st.one_of(st.text(max_size=3), st.lists(st.text(max_size=2),
+                                                                   min_size=1, max_size=3)))
+    elif fault == 'none':
+        enc_in = None
+    elif fault == 'one dimension':
+        cur_in, enc_in = cur[0], enc[0]
+    elif fault == 'three dimensions':
+        cur_in, enc_in = cur[None], enc[None]
+    elif fault == 'shapes differ':
+        enc_in = enc[:, : n - data.draw(st.integers(1, n - 1))]
+    elif fault == 'one record':
+        cur_in, enc_in = cur[:1], enc[:1]
+    elif fault == 'too short':
+        keep = data.draw(st.integers(0, MIN_SAMPLES - 1))
+        cur_in, enc_in = cur[:, :keep], enc[:, :keep]
+    elif fault in ('nan everywhere', 'inf everywhere'):
+        bad = math.nan if fault.startswith('nan') else -math.inf
+        enc_in = enc.copy()
+        enc_in[np.arange(m), data.draw(st.integers(0, n - 1))] = bad
+    elif fault == 'zero current':
+        cur_in = np.zeros_like(cur)
+    elif fault == 'flat encoder':
+        enc_in = np.full_like(enc, data.draw(st.floats(-1e6, 1e6)))
+    else:
+        period = {'period of another scanner': 2 * DT, 'zero period': 0.0,
+                  'negative period': -DT, 'nan period': math.nan,
+                  'infinite period': math.inf}[fault]
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        with pytest.raises(_expected_error(fault)) as err:
+            identify_window(cur_in, enc_in, sample_period=period, method=method,
+                            jackknife_groups=2)
+    assert str(err.value)
 
 
 @examples(100)

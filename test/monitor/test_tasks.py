@@ -87,6 +87,83 @@ def test_watchdog_task_goes_stale_and_recovers() -> None:
         WatchdogTask(DriftMonitor(), stale_timeout=0.0)
 
 
+class Clock:
+    """A settable clock for the tasks (seconds)."""
+
+    def __init__(self, t: float) -> None:
+        self.t = t
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_watchdog_task_is_stale_exactly_once_stale_timeout_has_passed() -> None:
+    """The claim "STALE after stale_timeout without a result" at the task itself: a poll
+    just before the timeout is not STALE, one just after is, since the start and since the
+    last result (the injected clock makes the boundary exact; the node's timer adds at most
+    one publish period, the next test)."""
+    rng = np.random.default_rng(16)
+    for _ in range(50):
+        timeout = float(np.exp(rng.uniform(np.log(0.05), np.log(1e3))))
+        start = float(rng.uniform(0.0, 1e4))
+        now = Clock(start)
+        task = WatchdogTask(DriftMonitor(), stale_timeout=timeout, clock=now)
+        eps = 1e-9 * (start + 3 * timeout)  # far above rounding, far below a timer period
+        now.t = start + timeout - eps
+        verdict, became = task.poll()
+        assert (verdict.level, became) == (STALE, False)  # nothing yet, not said yet
+        assert 'yet' in verdict.message
+        now.t = start + timeout + eps
+        assert task.poll()[1] is True
+        last = now.t = now.t + float(rng.uniform(0.0, timeout))
+        task.on_result(fake_result(), window_index=0)
+        now.t = last + timeout - eps
+        verdict, became = task.poll()
+        assert (verdict.level, became) == (OK, False), timeout
+        now.t = last + timeout + eps
+        verdict, became = task.poll()
+        assert (verdict.level, became) == (STALE, True), timeout
+        assert f'for {timeout:.1f} s' in verdict.message
+
+
+def test_watchdog_task_polled_by_a_timer_says_stale_within_one_publish_period() -> None:
+    """The node polls the task every 1 / publish_rate s (publish_rate in (0, 10], its
+    parameter range): after a silence of stale_timeout, STALE is reported by the first poll
+    past it, never earlier, never a poll later, and said once per silence. Results arrive at
+    random, with silences shorter and longer than the timeout (seeded cases)."""
+    rng = np.random.default_rng(1616)
+    said_total = 0
+    for _ in range(100):
+        timeout = float(np.exp(rng.uniform(np.log(0.05), np.log(20.0))))
+        period = 1.0 / float(rng.uniform(0.1, 10.0))
+        gaps = timeout * np.exp(rng.uniform(np.log(0.05), np.log(4.0), size=12))
+        results = float(rng.uniform(0.0, 3 * timeout)) + np.cumsum(gaps)
+        polls = float(rng.uniform(0.0, period)) + period * np.arange(
+            int((results[-1] + 2 * timeout) / period) + 2)
+        events = sorted([(float(t), 'poll') for t in polls]
+                        + [(float(t), 'result') for t in results])
+        now = Clock(0.0)
+        task = WatchdogTask(DriftMonitor(), stale_timeout=timeout, clock=now)
+        last = 0.0  # the start counts as the last result until the first one
+        said = False
+        for t, kind in events:
+            now.t = t
+            if kind == 'result':
+                task.on_result(fake_result(), window_index=0)
+                last, said = t, False
+                continue
+            verdict, became = task.poll()
+            timed_out = t - last > timeout
+            case = (timeout, period, t - last)
+            assert (verdict.level == STALE) == (timed_out or task.last_verdict is None), case
+            assert became == (timed_out and not said), case
+            if became:  # by the first poll past the timeout: within one publish period
+                assert timeout < t - last <= timeout + period, case
+                said = True
+                said_total += 1
+    assert said_total > 100  # silences longer than the timeout happened, and were said
+
+
 def test_windows_of_another_scanner_are_counted_as_mismatches_and_said_plainly() -> None:
     from galvo_sysid.sim.family import random_scanner
 
