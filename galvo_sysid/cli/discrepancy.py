@@ -46,10 +46,15 @@ output:
   a summary (gap, where, candidates, the verdict in one sentence, effects found);
   --json prints one object {"verdict", "summary", "remaining": {"gap", "noise_gap",
   "significance", "where", ...}, "effect", "parameters", "gap_before", "gap_after",
-  "candidates": [{"effect", "score", ...}], "steps": [...], "where", "where_after",
-  "moves", "angles", "threshold", "tolerance", "model"}.
+  "candidates": [{"effect", "score", ...}], "steps": [...], "tried": [...],
+  "proposal": {"terms", "gap_before", "gap_after", "share_closed", ...} or null, "where",
+  "where_after", "moves", "angles", "threshold", "tolerance", "model"}.
+  When the verdict is unexplained, a fallback fits the remaining residual with at most 3
+  terms of a dictionary (functions of angle, velocity, acceleration and current on the
+  current, or of the angle on the encoder reading): a proposal, never a name.
   --report DIR writes spectra.png, moves.png, candidates.png, where.png, summary.txt,
-  result.json and model.yaml (the augmented model, loadable by --model).
+  result.json and model.yaml (the augmented model, loadable by --model), and
+  proposal.yaml when there is a proposal (to read: its terms cannot yet be simulated).
 
 examples:
   galvo-sysid simulate --out /tmp/fric --angles 0.1psi 1psi 10psi --moves-per-angle 40 \\

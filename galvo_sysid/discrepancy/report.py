@@ -13,7 +13,9 @@ The result is a :class:`~galvo_sysid.discrepancy.workflow.DiscrepancyResult`.
 - ``where.png``: the excess over the noise by frequency band, by phase of the move and by
   move size, before and after,
 - ``summary.txt`` (:func:`format_result`), ``result.json`` (the ``--json`` object) and
-  ``model.yaml`` (the augmented model).
+  ``model.yaml`` (the augmented model),
+- ``proposal.yaml`` when the fallback proposed dictionary terms (a snippet to read: the
+  terms cannot yet be simulated).
 
 Plots use matplotlib's Agg backend (no display needed).
 """
@@ -119,6 +121,7 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
     lines.append(f'verdict: {verdict_sentence(result)}')
     if result.verdict == 'unexplained':
         lines.extend(_mode_hint(result))
+        lines.extend(_proposal(result))
     if result.steps:
         head = 'found' if result.verdict == 'named' else 'added, explaining part of the gap'
         lines.append(f'{head}: {result.effect} ({_params(result.parameters, t, result.effect)})')
@@ -140,6 +143,19 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
         lines.append('where the final model still disagrees:')
         lines.extend('  ' + line for line in result.where_after.summary())
     return '\n'.join(lines) + '\n'
+
+
+def _proposal(result: DiscrepancyResult) -> list[str]:
+    """The fallback's proposal: one sentence, then each term with its coefficient."""
+    prop = result.proposal
+    if prop is None:
+        return ['  fallback: no term of the dictionary is worth its parameters']
+    lines = [f'  fallback: {prop.sentence}']
+    for t in prop.terms:
+        phase = f', phase {t.phase:.3g} rad' if math.isfinite(t.phase) else ''
+        lines.append(f'    {t.coefficient:.4g} {t.unit} * {t.label} on the {t.side}{phase}'
+                     f' (score {t.score:.4g}, gap after {t.gap_after:.3g})')
+    return lines
 
 
 def _mode_hint(result: DiscrepancyResult) -> list[str]:
@@ -336,5 +352,9 @@ def write_report(result: DiscrepancyResult, directory: str | os.PathLike[str], *
                     encoding='utf-8')
     files.append(data)
     files.append(save_model(result.final_model, out / 'model.yaml'))
+    if result.proposal is not None:
+        snippet = out / 'proposal.yaml'
+        snippet.write_text(result.proposal.to_yaml(), encoding='utf-8')
+        files.append(snippet)
     return files
 

@@ -26,6 +26,7 @@ import numpy as np
 
 from galvo_sysid.discrepancy.candidates import CandidateFit, _acceptable, _Fitter
 from galvo_sysid.discrepancy.compare import Comparison, Diagnostics
+from galvo_sysid.discrepancy.fallback import Proposal, propose
 from galvo_sysid.discrepancy.localise import Localisation, localise
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.jsonsafe import finite_or_none
@@ -192,6 +193,9 @@ class DiscrepancyResult:
             made consistent (a good score is no name).
         before: Diagnostics of the given model (for reports).
         after: Diagnostics of the final model.
+        proposal: When the verdict is ``unexplained``, the few dictionary terms that explain
+            most of the remaining gap (:mod:`.fallback`; None if no term is worth it, or the
+            verdict is not ``unexplained``): a proposal, never a name.
     """
 
     verdict: str
@@ -214,6 +218,7 @@ class DiscrepancyResult:
     tried: tuple[Step, ...]
     before: Diagnostics = field(repr=False, compare=False)
     after: Diagnostics = field(repr=False, compare=False)
+    proposal: Proposal | None = None
 
     @property
     def sentence(self) -> str:
@@ -227,8 +232,9 @@ class DiscrepancyResult:
 
         Keys: verdict, summary (the verdict's sentence), remaining (the remaining gap, its
         significance and where it sits), effect, parameters, gap_before, gap_after,
-        candidates, steps, then where, where_after, moves, angles, threshold, noise_gap,
-        tolerance and model (the final model).
+        candidates, steps, tried, proposal (the fallback's terms, or None), then where,
+        where_after, moves, angles, threshold, noise_gap, tolerance and model (the final
+        model).
         """
         from galvo_sysid.model.files import model_to_dict
 
@@ -243,6 +249,7 @@ class DiscrepancyResult:
             'candidates': [c.to_dict() for c in self.candidates],
             'steps': [s.to_dict() for s in self.steps],
             'tried': [s.to_dict() for s in self.tried],
+            'proposal': None if self.proposal is None else self.proposal.to_dict(),
             'where': self.where.to_dict(),
             'where_after': self.where_after.to_dict(),
             'moves': self.moves,
@@ -258,7 +265,7 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
                      threshold: float = DEFAULT_THRESHOLD, max_effects: int = 3,
                      min_gap: float | None = None, min_improvement: float = 0.25,
                      tolerance: float = DEFAULT_TOLERANCE,
-                     effects: Sequence[str] = EFFECT_NAMES,
+                     effects: Sequence[str] = EFFECT_NAMES, fallback: bool = True,
                      progress: Callable[[str], None] | None = None) -> DiscrepancyResult:
     """Compare a model with measured moves, name the missing effects and add them.
 
@@ -277,6 +284,9 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
             still counts as explained (verdict ``named``); above it the verdict is
             ``unexplained``.
         effects: Candidate effects to try.
+        fallback: When the verdict is ``unexplained``, fit the remaining residual with a few
+            terms of a dictionary of functions of the measured motion and current
+            (:func:`.fallback.propose`): ``proposal`` of the result.
         progress: Called with a short text before each candidate fit.
 
     Returns:
@@ -371,6 +381,11 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
     else:
         verdict = 'named' if remaining.gap <= tolerance * comp.noise_gap else 'unexplained'
         effect = head.effect
+    proposal = None
+    if fallback and verdict == 'unexplained':
+        if progress is not None:
+            progress('fallback: fitting dictionary terms')
+        proposal = propose(comp, current, threshold=threshold)
     return DiscrepancyResult(
         verdict=verdict, effect=effect,
         parameters=current.effects[where_added[0]].params() if head else {},
@@ -378,4 +393,4 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
         rounds=tuple(rounds), steps=tuple(steps), initial_model=model, final_model=current,
         where=where, where_after=where_after or where, threshold=threshold,
         noise_gap=comp.noise_gap, moves=moves.moves, remaining=remaining,
-        tolerance=tolerance, tried=tried, before=before, after=after)
+        tolerance=tolerance, tried=tried, before=before, after=after, proposal=proposal)
