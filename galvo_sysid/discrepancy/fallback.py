@@ -239,6 +239,7 @@ def _collinear(held: NDArray[np.float64], new: NDArray[np.float64]) -> bool:
 
 
 def propose(comparison: Comparison, model: PlantModel, *, threshold: float,
+            min_improvement: float = 0.25,
             max_terms: int = DEFAULT_MAX_TERMS) -> Proposal | None:
     """Fit the model's residual with a few dictionary terms; None if none is worth it.
 
@@ -246,10 +247,13 @@ def propose(comparison: Comparison, model: PlantModel, *, threshold: float,
         comparison: The comparison of the workflow (its noise floor and weights).
         model: The model whose residual is fitted (the workflow's final model).
         threshold: Score (BIC drop) a term needs.
+        min_improvement: Share of the gap left before it that a term must close (as the
+            workflow's effects: a small improvement on a large gap is significant but no
+            explanation; a mode of the model that is off gets stand-ins closing 5-10 %).
         max_terms: Most terms selected.
 
     Returns:
-        The proposal, or None when no term's score exceeds the threshold.
+        The proposal, or None when no term passes both.
     """
     dictionary = _Dictionary(comparison, model)
     resid = dictionary.fitter.base_resid.ravel()
@@ -277,7 +281,8 @@ def propose(comparison: Comparison, model: PlantModel, *, threshold: float,
                 score = 2.0 * (cost - new) - p * log_n - col.extra - choice
                 if best is None or score > best[0]:
                     best = (score, new, f, col)
-        if best is None or best[0] <= threshold:
+        if best is None or best[0] <= threshold or (
+                _gap(best[1], noise) > (1.0 - min_improvement) * _gap(cost, noise)):
             break
         score, cost, f, col = best
         taken.add(f)

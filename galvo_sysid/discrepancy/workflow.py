@@ -385,7 +385,8 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
     if fallback and verdict == 'unexplained':
         if progress is not None:
             progress('fallback: fitting dictionary terms')
-        proposal = propose(comp, current, threshold=threshold)
+        proposal = propose(comp, current, threshold=threshold,
+                           min_improvement=min_improvement)
     return DiscrepancyResult(
         verdict=verdict, effect=effect,
         parameters=current.effects[where_added[0]].params() if head else {},
