@@ -66,9 +66,6 @@ _COLLINEAR = 0.1
 """A term whose columns keep less than this share of their norm outside the terms already
 selected adds nothing they do not say (x|x| and x^2 over moves of one sign)."""
 
-SIDES = ('current', 'reading')
-"""Where a term acts: an extra current [A] on the mechanics, or added to the reading [deg]."""
-
 
 @dataclass(frozen=True)
 class ProposedTerm:
