@@ -86,6 +86,13 @@ INDEPENDENT = {'viscous': 'viscous_friction', 'cogging': 'cogging_torque',
                'encoder_cyclic': 'encoder_cyclic_error'}
 """Library effects the independent simulator also has, and their registry names."""
 
+EXPECTED_TERMS = {'quadratic_drag': {'v|v| on the current'},
+                  'cubic_spring': {'x^3 on the current'},
+                  'commutation_ripple': {'i sin(2 pi x / P) on the current'},
+                  'encoder_scale_bow': {'x|x| on the reading', 'x^2 on the reading'}}
+"""The fallback's term of each held-out effect that has one in its dictionary (the effect's
+own law); the others (a mode off or drifting, backlash) have none and should get no proposal."""
+
 HELD_OUT = ['quadratic_drag', 'cubic_spring', 'commutation_ripple', 'encoder_scale_bow',
             'backlash_spring', 'mode_shift', 'mode_drift', 'cubic_spring+commutation_ripple',
             'quadratic_drag+encoder_scale_bow']
@@ -165,6 +172,10 @@ def run_case(case: tuple[str, str, str, dict[str, float], int, int]) -> dict[str
             'verdict': result.verdict, 'named': result.effect,
             'steps': [s.effect for s in result.steps], 'tried': [s.effect for s in result.tried],
             'errors': _errors(truth, result.parameters) if right else {},
+            'proposal': ([f'{t.term} on the {t.side}' for t in result.proposal.terms]
+                         if result.proposal is not None else []),
+            'proposal_closed': (result.proposal.share_closed if result.proposal is not None
+                                else 0.0),
             'gap_before': result.gap_before, 'gap_after': result.gap_after,
             'noise_gap': result.noise_gap, 'seconds': seconds}
 
@@ -268,6 +279,23 @@ def report(rows: list[dict[str, Any]]) -> bool:
         print(f'  outside the library: {len(wrong)} wrong names in {len(held)} cases (target 0); '
               f'{len(big) - len(missed)}/{len(big)} cases with a gap above 3 noise gaps '
               f'unexplained (target all); verdicts {counts} {"ok" if good else "MISSED"}')
+        proposed = [r for r in held if r['proposal']]
+        right_terms = [r for r in proposed if r['proposal'][0] in set().union(
+            *(EXPECTED_TERMS.get(part, set()) for part in r['effect'].split('+')))]
+        print(f'  outside the library, fallback: {len(proposed)}/{len(held)} cases with a '
+              f'proposal, its first term the hidden law in {len(right_terms)}/{len(proposed)} '
+              f'(reported, no target)')
+        for effect in dict.fromkeys(r['effect'] for r in held):
+            sel = [r for r in held if r['effect'] == effect]
+            firsts: dict[str, int] = {}
+            for r in sel:
+                key = r['proposal'][0] if r['proposal'] else 'no proposal'
+                firsts[key] = firsts.get(key, 0) + 1
+            closed = [r['proposal_closed'] for r in sel if r['proposal']]
+            share = (f', closing {100 * min(closed):.0f}-{100 * max(closed):.0f} % of the gap'
+                     if closed else '')
+            print(f'    {effect:<34} ' + ', '.join(f'{k} {v}/{len(sel)}'
+                                                  for k, v in firsts.items()) + share)
         for r in (wrong + missed)[:8]:
             print(f'    {r["effect"]} seed {r["seed"]}: {r["verdict"]}, named {r["steps"]}, gap '
                   f'{r["gap_before"]:.3g} -> {r["gap_after"]:.3g} ({r["label"]})')
