@@ -30,49 +30,70 @@ measured encoder. The gap is the RMS of the mean residual that the model leaves 
 over all frequencies and target angles, in units of the noise floor that the move-to-move
 scatter gives (0: the model explains the moves within the noise).
 
-Candidate effects, each fitted to the data and scored by the drop of the Bayesian
-information criterion (the best one above --threshold is added, then the search repeats):
-  input_delay          delay [s], the total equivalent input delay
-  unmodeled_resonance  natural_frequency [rad/s], damping_ratio, residue [deg/(A s^2)]
-  coulomb_friction     friction_current [A]
-  pivot_stiffness      natural_frequency [rad/s]
-  gain_change          gain_ratio
-  current_saturation   current_limit [A]
-  none                 the model explains the data within the noise"""
+Candidate effects (the effect registry's), each fitted to the data and scored by the drop
+of the Bayesian information criterion (the best one above --threshold that closes a quarter
+of the gap, leaves a residual consistent with the noise where it acts and has plausible
+parameters is added, then the search repeats):
+{effects}
+
+Every run ends in a verdict: named (the effects added explain the gap, with their
+parameters), unexplained (a gap significant against the noise floor remains that no
+library effect explains: where it sits in frequency, move phase and move size, and how
+large it is) or consistent (the model explains the moves within the noise)."""
 
 _EPILOG = """\
 output:
-  a summary (gap, where, candidates, effects found); --json prints one object
-  {"effect", "parameters", "gap_before", "gap_after", "candidates": [{"effect", "score",
-  ...}], "steps": [...], "where", "where_after", "moves", "angles", "threshold", "model"}.
+  a summary (gap, where, candidates, the verdict in one sentence, effects found);
+  --json prints one object {"verdict", "summary", "remaining": {"gap", "noise_gap",
+  "significance", "where", ...}, "effect", "parameters", "gap_before", "gap_after",
+  "candidates": [{"effect", "score", ...}], "steps": [...], "tried": [...],
+  "proposal": {"terms", "gap_before", "gap_after", "share_closed", ...} or null, "where",
+  "where_after", "moves", "angles", "threshold", "tolerance", "model"}.
+  When the verdict is unexplained, a fallback fits the remaining residual with at most 3
+  terms of a dictionary (functions of angle, velocity, acceleration and current on the
+  current, or of the angle on the encoder reading): a proposal, never a name.
   --report DIR writes spectra.png, moves.png, candidates.png, where.png, summary.txt,
-  result.json and model.yaml (the augmented model, loadable by --model).
+  result.json and model.yaml (the augmented model, loadable by --model), and
+  proposal.yaml when there is a proposal (to read: its terms cannot yet be simulated).
 
 examples:
   galvo-sysid simulate --out /tmp/fric --angles 0.1psi 1psi 10psi --moves-per-angle 40 \\
       --effect coulomb_friction:friction_current=0.02
   galvo-sysid discrepancy /tmp/fric
-  galvo-sysid discrepancy /tmp/fric --json | jq .effect
+  galvo-sysid discrepancy /tmp/fric --json | jq .verdict,.effect
   galvo-sysid discrepancy /tmp/fric --report /tmp/fric_report --save-model fric.yaml
   galvo-sysid discrepancy /tmp/other --model fric.yaml
 
 exit codes: 0 ok (whatever was found), 1 bad input, 2 usage error"""
 
 
+def _description() -> str:
+    """The help text with the registry's effects and their parameters."""
+    from galvo_sysid.model.effects import EFFECTS
+
+    lines = []
+    for name, kind in EFFECTS.items():
+        params = ', '.join(f'{p.name} [{p.unit}]' if p.unit else p.name
+                           for p in kind.parameters)
+        lines.append(f'  {name:<21}{params}')
+    return _DESCRIPTION.format(effects='\n'.join(lines))
+
+
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``discrepancy`` subcommand to an argparse subparsers object."""
-    from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD
+    from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD, DEFAULT_TOLERANCE
     from galvo_sysid.model.effects import EFFECT_NAMES
 
     p: argparse.ArgumentParser = subparsers.add_parser(
-        'discrepancy', formatter_class=HelpFormatter, description=_DESCRIPTION, epilog=_EPILOG,
+        'discrepancy', formatter_class=HelpFormatter, description=_description(),
+        epilog=_EPILOG,
         help='where a plant model and a bag disagree, and which effect is missing')
-    _arguments(p, DEFAULT_THRESHOLD, EFFECT_NAMES)
+    _arguments(p, DEFAULT_THRESHOLD, EFFECT_NAMES, DEFAULT_TOLERANCE)
     return p
 
 
 def _arguments(p: argparse.ArgumentParser, threshold: float,
-               effect_names: Sequence[str]) -> None:
+               effect_names: Sequence[str], tolerance: float) -> None:
     p.add_argument('bag', help='rosbag2 bag: directory, .mcap or .db3 file')
     p.add_argument('--model', metavar='MODEL.yaml',
                    help='plant model to compare with (default: the nominal model: Table I, '
@@ -83,6 +104,9 @@ def _arguments(p: argparse.ArgumentParser, threshold: float,
                    help='write the augmented model (YAML) to FILE')
     p.add_argument('--threshold', type=finite_float, default=threshold, metavar='S',
                    help='score (BIC drop) a candidate needs to be accepted')
+    p.add_argument('--tolerance', type=finite_float, default=tolerance, metavar='T',
+                   help='after effects were named, a remaining gap up to T noise gaps still '
+                        'counts as explained (verdict named); above it: unexplained')
     p.add_argument('--max-effects', type=positive(int), default=3, metavar='N',
                    help='most effects added in turn')
     p.add_argument('--effects', nargs='+', choices=list(effect_names), metavar='NAME',
@@ -123,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         result = find_discrepancy(moves, model, threshold=args.threshold,
                                   max_effects=args.max_effects, effects=args.effects,
+                                  tolerance=args.tolerance,
                                   progress=progress)
     finally:
         if verbose:
@@ -147,12 +172,12 @@ def run(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``discrepancy`` alone (``python -m galvo_sysid.cli.discrepancy``)."""
     limit_blas_threads()  # before numpy is imported
-    from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD
+    from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD, DEFAULT_TOLERANCE
     from galvo_sysid.model.effects import EFFECT_NAMES
 
-    parser = argparse.ArgumentParser(prog='galvo-sysid discrepancy', description=_DESCRIPTION,
+    parser = argparse.ArgumentParser(prog='galvo-sysid discrepancy', description=_description(),
                                      epilog=_EPILOG, formatter_class=HelpFormatter)
-    _arguments(parser, DEFAULT_THRESHOLD, EFFECT_NAMES)
+    _arguments(parser, DEFAULT_THRESHOLD, EFFECT_NAMES, DEFAULT_TOLERANCE)
     args = parser.parse_args(argv)
     return guarded('galvo-sysid discrepancy', lambda: run(args))
 

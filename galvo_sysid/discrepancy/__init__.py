@@ -5,13 +5,15 @@ the model, driven open loop by each move's measured current (:mod:`.plant`), wit
 measured angle in units of the noise floor (:mod:`.compare`, on the spectra, gap and bands
 of :mod:`.spectra`), fits and scores every candidate effect (:mod:`.candidates`), says where
 the model disagrees by frequency, phase of the move and move size (:mod:`.localise`), adds
-the best effects in turn (:mod:`.workflow`) and writes the figures and text
+the best effects in turn (:mod:`.workflow`), proposes a few dictionary terms for a gap no
+effect explains (:mod:`.fallback`) and writes the figures and text
 (:mod:`.report`). The names below are the public API; the modules' underscored names are
 private to the subpackage.
 """
 
 from galvo_sysid.discrepancy.candidates import CandidateFit
 from galvo_sysid.discrepancy.compare import Comparison, Diagnostics
+from galvo_sysid.discrepancy.fallback import Proposal, ProposedTerm, propose
 from galvo_sysid.discrepancy.localise import Band, Localisation, localise
 from galvo_sysid.discrepancy.moves import MoveSet, read_moves
 from galvo_sysid.discrepancy.plant import PlantSimulator
@@ -33,10 +35,13 @@ __all__ = [
     'Localisation',
     'MoveSet',
     'PlantSimulator',
+    'Proposal',
+    'ProposedTerm',
     'Step',
     'find_discrepancy',
     'format_result',
     'localise',
+    'propose',
     'read_moves',
     'write_report',
 ]

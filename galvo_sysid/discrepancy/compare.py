@@ -97,6 +97,10 @@ class Diagnostics:
             error (from the moves' scatter), (G,): a residual that builds up steadily over
             the record (a constant acceleration error: friction in one direction, a current
             offset) sits at 0 Hz, which J leaves out.
+        detrended_residual: ``residual`` less its least-squares straight line (the unknown
+            start offset and start velocity) [deg], (G, N).
+        detrended_floor: Its noise floor, from the scatter of the moves' own detrended
+            residuals [deg], (G, N).
     """
 
     angles: NDArray[np.float64]
@@ -118,6 +122,8 @@ class Diagnostics:
     group_cost: NDArray[np.float64]
     group_cost_noise: NDArray[np.float64]
     drift_z: NDArray[np.float64]
+    detrended_residual: NDArray[np.float64]
+    detrended_floor: NDArray[np.float64]
 
     @property
     def gap(self) -> float:
@@ -182,6 +188,7 @@ class Comparison:
         self.mean_ext = np.stack([self.ext[i].mean(axis=0) for i in self.index])
         self._sims: dict[Physics, PlantSimulator] = {}
         self._pulses: dict[tuple[Any, ...], tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+        self._carries: dict[tuple[Any, ...], NDArray[np.float64]] = {}
         n = moves.samples
         length = _analysed(n)                     # second differences analysed
         self.n_bins = length // 2 - 1
@@ -241,14 +248,23 @@ class Comparison:
         length = ext.shape[1]
         if length == n or not physics.residues:
             return np.zeros_like(current)
-        h_u, h_d = self._pulse(physics)
-        out = (_fft_conv(ext - hold, h_u, length - n, length)
-               - _fft_conv(current - hold, h_u[:n], 0, n))
-        if math.isfinite(physics.current_limit):
-            d = clip_correction(ext, physics, sample_period=self.moves.sample_period)
-            out += (_fft_conv(d, h_d, length - n, length)
-                    - _fft_conv(d[:, length - n:], h_d[:n], 0, n))
-        return out
+        held = np.asarray(hold, dtype=float)
+        key = (physics.residues, physics.natural_frequencies, physics.damping_ratios,
+               physics.gain_ratio, physics.pure_delay, physics.lag_time_constant,
+               physics.current_limit, ext.shape, current.shape, held.shape, held.tobytes())
+
+        def make() -> NDArray[np.float64]:
+            h_u, h_d = self._pulse(physics)
+            out = (_fft_conv(ext - hold, h_u, length - n, length)
+                   - _fft_conv(current - hold, h_u[:n], 0, n))
+            if math.isfinite(physics.current_limit):
+                d = clip_correction(ext, physics, sample_period=self.moves.sample_period)
+                out += (_fft_conv(d, h_d, length - n, length)
+                        - _fft_conv(d[:, length - n:], h_d[:n], 0, n))
+            return out
+        # cached: the candidates that leave the modes, the input dynamics and the limit alone
+        # (friction, viscous friction, the encoder's error...) share it
+        return _cached(self._carries, key, make)
 
     def simulate(self, model: PlantModel | Physics, *, per_move: bool = False) -> NDArray[
             np.float64]:
@@ -263,9 +279,12 @@ class Comparison:
             hold = sim.holding_current(self.mean_start)[:, None]
             return sim.simulate(self.mean_current, self.mean_start) + self.carry(
                 phys, self.mean_ext, self.mean_current, hold=hold)
-        hold = sim.holding_current(self.start)[:, None]
-        y = sim.simulate(self.moves.current, self.start) + self.carry(
-            phys, self.ext, self.moves.current, hold=hold)
+        hold = sim.holding_current(sim.true_start(self.start))[:, None]
+        carry = self.carry(phys, self.ext, self.moves.current, hold=hold)
+        if phys.encoder_error_amplitude:    # the encoder reads the carried ringing too
+            y = sim.simulate(self.moves.current, self.start, extra=carry)
+        else:
+            y = sim.simulate(self.moves.current, self.start) + carry
         if per_move:
             return y
         return np.stack([y[i].mean(axis=0) for i in self.index])
@@ -372,6 +391,12 @@ class Comparison:
         floor = np.empty((g_count, n))
         acc_floor = np.empty((g_count, n - 2))
         drift_z = np.zeros(g_count)
+        # a straight line per record (start offset and velocity) removed by least squares
+        line = np.stack([np.ones(n), t - t.mean()], axis=1)
+        flat = np.eye(n) - line @ np.linalg.pinv(line)
+        detrended = resid_moves @ flat.T
+        det_mean = np.empty((g_count, n))
+        det_floor = np.empty((g_count, n))
         bases = self.basis(phys)
         for g, idx in enumerate(self.index):
             w = self.weights[g]
@@ -382,6 +407,8 @@ class Comparison:
             noise_spec[g] = to_angle / w / math.sqrt(_analysed(n))
             per = resid_moves[idx]
             floor[g] = per.std(axis=0, ddof=1) / math.sqrt(len(idx))
+            det_mean[g] = detrended[idx].mean(axis=0)
+            det_floor[g] = detrended[idx].std(axis=0, ddof=1) / math.sqrt(len(idx))
             acc = np.diff(per, 2, axis=1)
             acc_floor[g] = acc.std(axis=0, ddof=1) / math.sqrt(len(idx))
             drift_sd = float(acc.mean(axis=1).std(ddof=1)) / math.sqrt(len(idx))
@@ -399,7 +426,7 @@ class Comparison:
             current=self.mean_current.copy(), cost=float(gcost.sum()),
             cost_noise=self.noise_cost(phys), group_cost=gcost,
             group_cost_noise=np.array([nb - q.shape[1] / 2.0 for q in bases]),
-            drift_z=drift_z)
+            drift_z=drift_z, detrended_residual=det_mean, detrended_floor=det_floor)
 
 
 def _physics(model: PlantModel | Physics) -> Physics:

@@ -103,6 +103,24 @@ class Localisation:
             'size_exponent': finite_or_none(self.size_exponent),
         }
 
+    def phrase(self) -> str:
+        """Where, in one clause: bands, phase of the move and move size (for one sentence)."""
+        parts = []
+        bands = self.main_bands
+        if bands:
+            parts.append('at ' + ', '.join(f'{_hz(b.low)}-{_hz(b.high)} ({100 * b.share:.0f} %)'
+                                          for b in bands))
+        else:
+            parts.append('spread over the frequencies (no band above the noise)')
+        if self.main_phase != 'none':
+            parts.append(f'mostly in the {self.main_phase} '
+                         f'({100 * self.phases[self.main_phase]:.0f} %)')
+        if self.size_trend not in ('none', 'single angle'):
+            sizes = ', '.join(f'{a:g} deg: {g:.2g}' for a, g in zip(self.angles, self.gaps,
+                                                                      strict=True))
+            parts.append(f'by move size {self.size_trend} (gap {sizes})')
+        return ', '.join(parts)
+
     def summary(self) -> list[str]:
         """Short human-readable lines."""
         lines = []

@@ -178,7 +178,8 @@ class PlantSimulator:
         # drive: the mechanics' input per unit torque current
         a, b_u, drive, c = modal_state_space(gains=gains, frequencies=freqs, dampings=damps,
                                              lag_time_constant=ph.lag_time_constant,
-                                             input_gain=ph.gain_ratio)
+                                             input_gain=ph.gain_ratio,
+                                             rigid_damping=ph.rigid_damping)
         n = a.shape[0]
         self._a, self._c, self._drive, self._off = a, c, drive, off
         t = sample_period
@@ -227,11 +228,12 @@ class PlantSimulator:
                          velocity: bool = False) -> NDArray[np.float64]:
         """Angle (R, length) from state increments inc (R, N, n) added at each sample's end.
 
-        With ``velocity`` also the rigid body's velocity: (R, 2, length).
+        With ``velocity`` also the rigid body's position and velocity: (R, 3, length).
         """
         r, n, _ = inc.shape
         phi_t = self._phi.T
-        rows = [self._c] if not velocity else [self._c, np.eye(self._a.shape[0])[self._off + 1]]
+        eye = np.eye(self._a.shape[0])
+        rows = [self._c] if not velocity else [self._c, eye[self._off], eye[self._off + 1]]
         obs = np.stack(rows, axis=1)                                # (n, 1 or 2)
         out = np.zeros((r, obs.shape[1], length))
         active = np.flatnonzero(np.any(inc != 0, axis=(0, 2)))
@@ -263,24 +265,46 @@ class PlantSimulator:
         out = np.fft.irfft(np.fft.rfft(x, nfft, axis=-1) * np.fft.rfft(h, nfft), nfft, axis=-1)
         return np.asarray(out[..., :length], dtype=np.float64)
 
-    def holding_current(self, start: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Command that holds the plant at rest at ``start`` [deg] (0 without a pivot)."""
+    def rigid_start(self, start: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The rigid-body coordinate's angle [deg] at rest at the shaft angle ``start``.
+
+        Without a pivot spring the modes carry no torque at rest, so it is the shaft angle;
+        with one, the held torque deflects the modes statically too.
+        """
         ph = self.physics
         if ph.pivot_frequency <= 0:
-            return np.zeros_like(start)
-        return start / (ph.gain_ratio * ph.static_gain())
+            return np.array(start, dtype=np.float64)
+        return np.asarray(start * (ph.k0 / ph.pivot_frequency**2) / ph.static_gain(),
+                          dtype=np.float64)
+
+    def holding_current(self, start: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Command that holds the plant at rest at the shaft angle ``start`` [deg]: against
+        the pivot spring (0 without one) and the cogging torque there."""  # noqa: D205, D209
+        ph = self.physics
+        torque = (np.zeros_like(start) if ph.pivot_frequency <= 0 else
+                  start / ph.static_gain())
+        if ph.cogging_amplitude:
+            torque = torque - ph.cogging(self.rigid_start(start), 0.0)
+        return np.asarray(torque / ph.gain_ratio, dtype=np.float64)
+
+    def true_start(self, start: ArrayLike) -> NDArray[np.float64]:
+        """The shaft angle whose encoder reading is ``start`` (itself without a cyclic error)."""
+        return self.physics.true_angle(start)
 
     # ------------------------------------------------------------------ simulate
 
-    def simulate(self, current: ArrayLike, start: ArrayLike) -> NDArray[np.float64]:
+    def simulate(self, current: ArrayLike, start: ArrayLike, *,
+                 extra: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """Simulate records from rest at their start angles.
 
         Args:
             current: Commanded current [A], (M, N) or (N,) with N = ``length``.
-            start: Start angle(s) [deg], scalar or (M,).
+            start: Start angle(s) as the encoder reads them [deg], scalar or (M,).
+            extra: A shaft angle (M, N) added before the encoder reads it (the ringing that
+                previous moves leave, see :meth:`Comparison.carry`).
 
         Returns:
-            The angle [deg], shaped like ``current``.
+            The encoder angle [deg], shaped like ``current``.
         """
         u_in = np.asarray(current, dtype=float)
         u = np.atleast_2d(u_in)
@@ -288,29 +312,41 @@ class PlantSimulator:
             raise InvalidDataError(f'current must have {self.length} samples per record')
         if not np.all(np.isfinite(u)):
             raise InvalidDataError('current contains NaN or Inf')
-        y0 = np.broadcast_to(np.asarray(start, dtype=float), (u.shape[0],)).copy()
+        ph = self.physics
+        reading = np.broadcast_to(np.asarray(start, dtype=float), (u.shape[0],))
+        y0 = self.true_start(reading) if ph.encoder_error_amplitude else reading.copy()
         u_eq = self.holding_current(y0)
         du = u - u_eq[:, None]
         n_len = self.length
         y = self._convolve(self._h_y, du, n_len) + y0[:, None]
-        ph = self.physics
         if ph.linear:
+            if extra is not None:
+                y += extra.reshape(y.shape)
             return np.asarray(y.reshape(u_in.shape), dtype=np.float64)
         rigid = None
+        torques = ph.friction_current > 0 or ph.cogging_amplitude > 0
         if math.isfinite(ph.current_limit):
             rows, inc = self._saturation(du, u_eq)
             if rows.size:
                 out = self._from_increments(inc, n_len + 1, velocity=True)
                 y[rows] += out[:, 0, :n_len]
-                if ph.friction_current > 0:
-                    rigid = np.zeros((u.shape[0], n_len + 1))
-                    rigid[rows] = out[:, 1]
-        if ph.friction_current > 0:
-            v_lin = self._convolve(self._u_states[:, self._off + 1], du, n_len + 1)
+                if torques:
+                    rigid = np.zeros((u.shape[0], 2, n_len + 1))
+                    rigid[rows] = out[:, 1:]
+        if torques:
+            off = self._off
+            v_lin = self._convolve(self._u_states[:, off + 1], du, n_len + 1)
+            p_lin = (self._convolve(self._u_states[:, off], du, n_len + 1)
+                     if ph.cogging_amplitude else np.zeros_like(v_lin))
             if rigid is not None:
-                v_lin += rigid
-            d_fr = self._friction(v_lin)
-            y += self._convolve(self._friction_response(), d_fr, n_len)
+                p_lin += rigid[:, 0]
+                v_lin += rigid[:, 1]
+            d = self._torques(p_lin, v_lin, self.rigid_start(y0))
+            y += self._convolve(self._friction_response(), d, n_len)
+        if extra is not None:
+            y += extra.reshape(y.shape)
+        if ph.encoder_error_amplitude:
+            y = ph.reading(y)
         return np.asarray(y.reshape(u_in.shape), dtype=np.float64)
 
     def _saturation(self, du: NDArray[np.float64], u_eq: NDArray[np.float64]) -> tuple[
@@ -339,36 +375,52 @@ class PlantSimulator:
             inc[r_idx, k_idx] = d @ self._held_drive(self.substeps).T
         return rows, inc
 
-    def _friction(self, v_lin: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Friction current (M, N) held per sample, stick-slip.
+    def _torques(self, p_lin: NDArray[np.float64], v_lin: NDArray[np.float64],
+                 p_start: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Friction and cogging currents (M, N) held per sample.
 
-        v_lin (M, N + 1) is the rigid body's velocity without friction; the friction's own
-        share of the rigid body's position and velocity evolves with its one-sample
-        transition (the position matters only with a pivot spring).
+        p_lin, v_lin (M, N + 1) are the rigid body's position (relative to its start
+        ``p_start``) and velocity without these currents; their own share of the rigid body's
+        position and velocity evolves with its one-sample transition. The cogging torque of
+        the position and velocity at each sample's start (less its value at the start, which
+        the holding current takes) acts first; Coulomb friction then follows a stick-slip
+        law: the rotor stays stuck while the friction needed to hold it is at most
+        ``friction_current``, otherwise it slides with the full friction against its
+        velocity; a stop within a sample ends stuck, a reversal splits the sample at the
+        linearly interpolated zero crossing.
         """
-        f = self.physics.friction_current
+        ph = self.physics
+        f = ph.friction_current
         off = self._off
         phi = self._phi[off:off + 2, off:off + 2]
         g = self._held_drive(1)[off:off + 2, 0]        # rigid-body state after one sample
         g_p, g_v = float(g[0]), float(g[1])
         limit = f * g_v                                 # largest velocity friction can stop
-        spring = self.physics.pivot_frequency > 0
+        spring = ph.pivot_frequency > 0 or ph.viscous_coefficient > 0
+        cogging = ph.cogging_amplitude > 0
         p00, p01, p10, p11 = (float(x) for x in phi.ravel())
         v_t = np.ascontiguousarray(v_lin.T)
+        p_t = np.ascontiguousarray(p_lin.T + p_start)
+        hold = ph.cogging(p_start, 0.0) if cogging else 0.0
         m, n1 = v_lin.shape
         n = n1 - 1
-        sp = np.zeros(m)                                # friction's share of position
+        sp = np.zeros(m)                                # the currents' share of position
         sv = np.zeros(m)                                # ... and of velocity
         stuck = np.ones(m, dtype=bool)                  # at rest at the start
         d = np.empty((n, m))
         with np.errstate(divide='ignore', invalid='ignore'):
             for k in range(n):
                 v0 = v_t[k] + sv
-                if spring:
-                    fv = p10 * sp + p11 * sv
-                    sp = p00 * sp + p01 * sv
+                dc = ph.cogging(p_t[k] + sp, v0) - hold if cogging else 0.0
+                if spring or cogging:
+                    fv = p10 * sp + p11 * sv + g_v * dc
+                    sp = p00 * sp + p01 * sv + g_p * dc
                 else:
                     fv = sv
+                if f <= 0:
+                    sv = fv
+                    d[k] = dc
+                    continue
                 v_free = v_t[k + 1] + fv
                 # sliding (or breaking away) against the velocity
                 sgn = np.sign(np.where(stuck, v_free, v0))
@@ -380,10 +432,10 @@ class PlantSimulator:
                 dk = np.where(stop, -v_free / g_v,
                               np.where(reverse, slide * (v0 + v_end) / (v0 - v_end), slide))
                 sv = np.where(stop, -v_t[k + 1], fv + g_v * dk)
-                if spring:
+                if spring or cogging:
                     sp = sp + g_p * dk
                 stuck = stop
-                d[k] = dk
+                d[k] = dk + dc
         return np.ascontiguousarray(d.T)
 
 

@@ -8,11 +8,14 @@ The result is a :class:`~galvo_sysid.discrepancy.workflow.DiscrepancyResult`.
   after (every effect found added), with the noise floor of the mean,
 - ``moves.png``: measured vs simulated mean moves and their residuals before/after, with the
   residual's noise floor (standard error of the mean),
-- ``candidates.png``: the candidates' scores (BIC drop) of every round, with the threshold,
+- ``candidates.png``: the candidates' scores (BIC drop) of every round, with the threshold
+  (the effect added green, one tried and taken back orange),
 - ``where.png``: the excess over the noise by frequency band, by phase of the move and by
   move size, before and after,
 - ``summary.txt`` (:func:`format_result`), ``result.json`` (the ``--json`` object) and
-  ``model.yaml`` (the augmented model).
+  ``model.yaml`` (the augmented model),
+- ``proposal.yaml`` when the fallback proposed dictionary terms (a snippet to read: the
+  terms cannot yet be simulated).
 
 Plots use matplotlib's Agg backend (no display needed).
 """
@@ -26,7 +29,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from galvo_sysid.discrepancy.candidates import _acceptable
 from galvo_sysid.jsonsafe import json_safe
+from galvo_sysid.model.effects import EFFECTS
 from galvo_sysid.model.files import save_model
 
 if TYPE_CHECKING:
@@ -35,23 +40,53 @@ if TYPE_CHECKING:
     from galvo_sysid.discrepancy.localise import Localisation
     from galvo_sysid.discrepancy.workflow import DiscrepancyResult
 
-__all__ = ['format_result', 'write_report']
+__all__ = ['format_result', 'verdict_sentence', 'write_report']
 
-_UNITS = {'delay': 's', 'natural_frequency': 'rad/s', 'damping_ratio': '', 'residue':
-          'deg/(A s^2)', 'friction_current': 'A', 'gain_ratio': '', 'current_limit': 'A'}
-
-
-def _params(params: dict[str, float], sample_period: float) -> str:
+def _params(params: dict[str, float], sample_period: float, effect: str) -> str:
+    """An effect's parameters with their units (the registry's) and a readable form."""
+    kind = EFFECTS.get(effect)
+    units = {p.name: p.unit for p in kind.parameters} if kind is not None else {}
     parts = []
     for k, v in params.items():
-        unit = _UNITS.get(k, '')
+        unit = units.get(k, '')
         text = f'{k}={v:.4g}' + (f' {unit}' if unit else '')
         if k == 'delay':
             text += f' ({v / sample_period:.3f} tau)'
         if k == 'natural_frequency':
             text += f' ({v / (2 * math.pi):.4g} Hz)'
+        if k == 'bandwidth' and v > 0:
+            text += f' (lag {1 / (2 * math.pi * v) / sample_period:.3f} tau)'
         parts.append(text)
     return ', '.join(parts)
+
+
+def _added(result: DiscrepancyResult) -> str:
+    """The effects the workflow added, with their final parameters."""
+    t = result.initial_model.sample_period
+    added = [e for e in result.final_model.effects if e not in result.initial_model.effects]
+    return ' and '.join(f'{e.name} ({_params(e.params(), t, e.name)})' for e in added)
+
+
+def verdict_sentence(result: DiscrepancyResult) -> str:
+    """The verdict in one sentence: named, unexplained or consistent, with the numbers."""
+    r = result.remaining
+    noise = f'noise alone stays below {r.noise_gap:.2g}'
+    if result.verdict == 'consistent':
+        return (f'consistent: the model explains the moves within the noise (gap '
+                f'{r.gap:.3g}; {noise}).')
+    if result.verdict == 'named':
+        names = _added(result)
+        verb = 'explain' if ' and ' in names else 'explains'
+        rest = (f'; the {r.gap:.3g} left is {r.ratio:.1f} noise gaps, within the tolerance '
+                f'of {result.tolerance:g}' if r.significant else '')
+        return (f'named: {names} {verb} the gap ({result.gap_before:.3g} -> {r.gap:.3g}; '
+                f'{noise}{rest}).')
+    partly = (f' (after {_added(result)}, which explained part of it: '
+              f'{result.gap_before:.3g} -> {r.gap:.3g})' if result.steps else '')
+    return (f'unexplained: a gap of {r.gap:.3g} remains ({r.ratio:.1f} x the noise gap, '
+            f'{r.significance:.0f} noise std; mean residual {r.residual_rms:.2g} deg RMS '
+            f'against a floor of {r.floor_rms:.2g} deg) that no library effect explains'
+            f'{partly}: {r.where.phrase()}.')
 
 
 def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
@@ -70,27 +105,39 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
     lines.append('where the model and the moves disagree:')
     lines.extend('  ' + line for line in result.where.summary())
     lines.append('')
-    lines.append(f'candidates (score = BIC drop; above {result.threshold:g} names the effect):')
+    lines.append(f'candidates (score = BIC drop, above {result.threshold:g}; where it acts: '
+                 f'excess in noise std, share of the excess left):')
+    explained = result.tolerance * result.noise_gap
     for c in result.candidates:
-        params = _params(c.parameters, t) if c.parameters else '-'
+        params = _params(c.parameters, t, c.effect) if c.parameters else '-'
+        ok = _acceptable(c.local_excess, c.local_left, c.gap, explained)
+        local = ('' if c.effect == 'none' else
+                 f'   where it acts {c.local_excess:8.3g} sd, left {100 * c.local_left:5.3g} %'
+                 f' {"ok" if ok else "NO"}')
         lines.append(f'  {c.effect:<20} {c.score:>12.4g}   gap after {c.gap:7.3g}   '
-                     f'white {c.whiteness:7.3g}   {params}')
+                     f'white {c.whiteness:7.3g}{local}   {params}'
+                     + (f'   (implausible: {c.implausible})' if c.implausible else ''))
     lines.append('')
-    if not result.steps:
-        lines.append('found: none - the model explains the moves within the noise' if
-                     result.gap_before < result.noise_gap else
-                     'found: none - no candidate effect explains the gap')
-        if result.gap_before >= result.noise_gap:
-            lines.extend(_mode_hint(result))
-    else:
-        lines.append(f'found: {result.effect} ({_params(result.parameters, t)})')
+    lines.append(f'verdict: {verdict_sentence(result)}')
+    if result.verdict == 'unexplained':
+        lines.extend(_mode_hint(result))
+        lines.extend(_proposal(result))
+    if result.steps:
+        head = 'found' if result.verdict == 'named' else 'added, explaining part of the gap'
+        lines.append(f'{head}: {result.effect} ({_params(result.parameters, t, result.effect)})')
         for i, s in enumerate(result.steps, start=1):
-            lines.append(f'  step {i}: {s.effect} ({_params(s.parameters, t)}), score '
+            lines.append(f'  step {i}: {s.effect} ({_params(s.parameters, t, s.effect)}), score '
                          f'{s.score:.4g}, gap {s.gap_before:.3g} -> {s.gap_after:.3g}')
         final = [e for e in result.final_model.effects if e not in
                  result.initial_model.effects]
         lines.append('  final effects (refitted together): ' + '; '.join(
-            f'{e.name} ({_params(e.params(), t)})' for e in final))
+            f'{e.name} ({_params(e.params(), t, e.name)})' for e in final))
+    for s in result.tried:
+        params = _params(s.parameters, t, s.effect)
+        lines.append(f'tried and taken back: {s.effect} ({params}), score {s.score:.4g}'
+                     f', gap {s.gap_before:.3g} -> {s.gap_after:.3g}, but it leaves '
+                     f'{100 * s.local_left:.3g} % of the excess where it acts '
+                     f'({s.local_excess:.3g} noise std)')
     lines.append(f'gap: {result.gap_before:.3g} -> {result.gap_after:.3g}')
     if result.steps:
         lines.append('where the final model still disagrees:')
@@ -98,10 +145,24 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
     return '\n'.join(lines) + '\n'
 
 
+def _proposal(result: DiscrepancyResult) -> list[str]:
+    """The fallback's proposal: one sentence, then each term with its coefficient."""
+    prop = result.proposal
+    if prop is None:
+        return ['  fallback: no term of the dictionary is worth its parameters']
+    lines = [f'  fallback: {prop.sentence}']
+    for t in prop.terms:
+        phase = f', phase {t.phase:.3g} rad' if math.isfinite(t.phase) else ''
+        lines.append(f'    {t.coefficient:.4g} {t.unit} * {t.label} on the {t.side}{phase}'
+                     f' (score {t.score:.4g}, gap after {t.gap_after:.3g})')
+    return lines
+
+
 def _mode_hint(result: DiscrepancyResult) -> list[str]:
     """A hint when the unexplained residual sits at the model's own modes."""
     freqs = [w / (2 * math.pi) for w in result.initial_model.modal.natural_frequencies]
-    hits = sorted({f for b in result.where.main_bands for f in freqs if b.low <= f <= b.high})
+    hits = sorted({f for b in result.remaining.where.main_bands for f in freqs
+                   if b.low <= f <= b.high})
     if not hits:
         return []
     where = ', '.join(f'{f / 1e3:.3g} kHz' for f in hits)
@@ -208,26 +269,30 @@ def _plot_candidates(result: DiscrepancyResult, path: Path) -> None:
         ax = axes[0][i]
         names = [c.effect for c in cands]
         scores = [c.score for c in cands]
+        added = [*result.steps, *result.tried]      # one per round that added an effect
+        step = added[i] if i < len(added) else None
         accepted = i < len(result.steps)
-        colors = ['tab:green' if j == 0 and accepted else 'tab:gray'
-                  for j in range(len(scores))]
+        color = 'tab:green' if accepted else 'tab:orange'
+        colors = [color if step is not None and c.effect == step.effect else 'tab:gray'
+                  for c in cands]
         ax.barh(range(len(names)), scores, color=colors)
         ax.set_yticks(range(len(names)), names, fontsize=8)
         ax.invert_yaxis()
         ax.set_xscale('symlog', linthresh=10)
         ax.axvline(result.threshold, color='tab:red', ls='--', lw=1, label='threshold')
         ax.set_xlabel('score (BIC drop)', fontsize=8)
-        if accepted:
-            title = f'round {i + 1}: {result.steps[i].effect} added'
+        if step is not None:
+            title = (f'round {i + 1}: {step.effect} added' if accepted else
+                     f'round {i + 1}: {step.effect} tried, taken back')
         elif cands[0].effect != 'none' and cands[0].score > result.threshold:
-            title = f'round {i + 1}: nothing added (closes < 1/4 of the gap)'
+            title = f'round {i + 1}: nothing added (no candidate passes the checks)'
         else:
             title = f'round {i + 1}: nothing added'
         ax.set_title(title, fontsize=9)
         ax.grid(True, axis='x', alpha=0.3)
         if i == 0:
             ax.legend(fontsize=7)
-    fig.suptitle('Candidate effects', fontsize=10)
+    fig.suptitle(f'Candidate effects - verdict: {result.verdict}', fontsize=10)
     _save(plt, fig, path)
 
 
@@ -287,5 +352,9 @@ def write_report(result: DiscrepancyResult, directory: str | os.PathLike[str], *
                     encoding='utf-8')
     files.append(data)
     files.append(save_model(result.final_model, out / 'model.yaml'))
+    if result.proposal is not None:
+        snippet = out / 'proposal.yaml'
+        snippet.write_text(result.proposal.to_yaml(), encoding='utf-8')
+        files.append(snippet)
     return files
 

@@ -105,3 +105,28 @@ def _band_excess(z2: NDArray[np.float64], *, bands: int) -> list[tuple[int, int,
         out.append((lo, hi, float(total[lo - 1:hi - 1].sum()) - n, n))
     return out
 
+
+def _where_it_acts(without: NDArray[np.float64], with_: NDArray[np.float64]) -> tuple[
+        float, float]:
+    """Whether an effect leaves a residual consistent with the noise where it acts.
+
+    ``without`` and ``with_`` are the whitened residuals (G, 2F) of the model without and
+    with the effect. Where it acts is weighted per bin by w = c / (c + 1), c the power of its
+    correction (``without - with_``) in noise units: about 1 where the correction stands
+    above the noise, about c where it is lost in it. Returns
+
+    - the weighted excess of the residual with the effect over the noise, in its standard
+      deviations: sum w (z^2 - 1) / sqrt(sum w^2), about 0 +- 1 when the residual is noise
+      where the effect acts (z^2 of noise has mean and standard deviation 1);
+    - the share of the excess there that the effect leaves: sum w (z^2 - 1) over the same
+      sum without the effect (about 0 for the right effect, 0.15-1 for a wrong one).
+    """
+    c = _power(without - with_)
+    w = c / (c + 1.0)
+    norm = math.sqrt(float(np.sum(w * w)))
+    if norm == 0:
+        return 0.0, 1.0
+    left = float(np.sum(w * (_power(with_) - 1.0)))
+    before = float(np.sum(w * (_power(without) - 1.0)))
+    return left / norm, (left / before if before > 0 else math.inf)
+

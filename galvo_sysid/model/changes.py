@@ -2,9 +2,11 @@
 
 :class:`Drift` and :class:`StepChange` act on any parameter of the running plant by name
 (:meth:`galvo_sysid.model.physics.Physics.parameters`: ``k0``, ``k1``.., ``omega_1``..,
-``zeta_1``.., ``lag_time_constant``, ``dead_time``, ``friction_current``, ``pivot_frequency``,
-``gain_ratio``, ``current_limit``) and are evaluated at the start of each move by
-:func:`plant_at`: the plant is piecewise constant, one value per move.
+``zeta_1``.. and :data:`~galvo_sysid.model.physics.PHYSICAL_PARAMETERS`: ``lag_time_constant``,
+``dead_time``, ``friction_current``, ``pivot_frequency``, ``gain_ratio``, ``current_limit``,
+``viscous_coefficient``, the cogging's and the encoder error's amplitude, period and phase)
+and are evaluated at the start of each move by :func:`plant_at`: the plant is piecewise
+constant, one value per move.
 """
 
 from __future__ import annotations

@@ -201,8 +201,9 @@ class DiscreteStateSpace:
 
 def modal_state_space(*, gains: Sequence[float], frequencies: Sequence[float],
                       dampings: Sequence[float], lag_time_constant: float,
-                      input_gain: float = 1.0) -> tuple[NDArray[np.float64], NDArray[np.float64],
-                                                         NDArray[np.float64], NDArray[np.float64]]:
+                      input_gain: float = 1.0, rigid_damping: float = 0.0) -> tuple[
+                          NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                          NDArray[np.float64]]:
     """Continuous state space of ``input_gain * lag(s) * sum_i g_i/(s^2 + 2 z_i w_i s + w_i^2)``.
 
     The states are the lag's output current first (if ``lag_time_constant`` > 0), then
@@ -214,6 +215,8 @@ def modal_state_space(*, gains: Sequence[float], frequencies: Sequence[float],
         dampings: Damping ratios z_i.
         lag_time_constant: First-order lag in front of the mechanics [s] (0: none).
         input_gain: Factor between the command and the mechanics (e.g. a torque-constant ratio).
+        rigid_damping: Viscous damping of the first mode (the rigid body) [1/s]: its
+            denominator becomes s^2 + rigid_damping s + w_0^2.
 
     Returns:
         ``(a, b, drive, c)``: system matrix, command input, the mechanics' input per unit of
@@ -228,7 +231,7 @@ def modal_state_space(*, gains: Sequence[float], frequencies: Sequence[float],
         p, v = off + 2 * i, off + 2 * i + 1
         a[p, v] = 1.0
         a[v, p] = -w * w
-        a[v, v] = -2 * z * w
+        a[v, v] = -2 * z * w - (rigid_damping if i == 0 else 0.0)
         drive[v] = k
         c[p] = 1.0
     b = np.zeros(n)

@@ -23,6 +23,20 @@ effect                   parameters
 ``gain_change``          ``gain_ratio``: the torque constant relative to the modal model (it
                          scales the current's torque, not the friction).
 ``current_saturation``   ``current_limit`` [A]: the amplifier's output current is clipped.
+``viscous_friction``     ``current_per_velocity`` [A s/deg]: viscous friction on the rigid-body
+                         motion, as a current proportional to its velocity (it damps the rigid
+                         body: k0/(s^2 + k0 b s + w_p^2)).
+``cogging_torque``       ``amplitude`` [A], ``period`` [deg], ``phase`` [rad]: a torque
+                         periodic in the rotor's (rigid-body) angle p, amplitude sin(2 pi p /
+                         period + phase), as an equivalent current (cogging, torque ripple that
+                         does not depend on the current).
+``encoder_cyclic_error`` ``amplitude`` [deg], ``period`` [deg], ``phase`` [rad]: the encoder
+                         reads y + amplitude sin(2 pi y / period + phase): an error of the
+                         reading, not of the torque (the controller acts on it, the shaft does
+                         not feel it); 2 pi amplitude / period must stay below 0.5.
+``amplifier_bandwidth``  ``bandwidth`` [Hz]: the current amplifier's first-order lag has this
+                         -3 dB bandwidth (lag time constant 1 / (2 pi bandwidth); inf: no lag).
+                         It acts before an ``input_delay``, whose total equivalent delay stays.
 =======================  =====================================================================
 """
 
@@ -112,6 +126,8 @@ class EffectType:
         act: How it acts: ``act(physics, parameters) -> physics``.
         linear: Whether the plant stays linear with it.
         repeatable: Whether a model may carry several of it.
+        order: Effects act in this order (stable within equal orders; the amplifier's
+            bandwidth before the input delay, whose total it keeps).
     """
 
     name: str
@@ -120,6 +136,7 @@ class EffectType:
     act: Callable[[Physics, Mapping[str, float]], Physics]
     linear: bool = True
     repeatable: bool = False
+    order: int = 0
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -144,6 +161,18 @@ def _resonance(ph: Physics, p: Mapping[str, float]) -> Physics:
 
 _FREQUENCY = ParameterSpec('natural_frequency', 'rad/s', 'natural frequency', 0.0, 1e8,
                            low_open=True)
+
+
+def _periodic(unit: str, what: str, largest: float) -> tuple[ParameterSpec, ...]:
+    """Amplitude, period [deg] and phase [rad] of an effect periodic in the angle."""
+    return (ParameterSpec('amplitude', unit, f'{what} amplitude', 0.0, largest),
+            ParameterSpec('period', 'deg', 'period in the angle', 0.0, 360.0, low_open=True),
+            ParameterSpec('phase', 'rad', 'phase at 0 deg', -math.pi, math.pi))
+
+
+def _bandwidth(ph: Physics, p: Mapping[str, float]) -> Physics:
+    f = p['bandwidth']
+    return replace(ph, lag_time_constant=0.0 if math.isinf(f) else 1.0 / (2 * math.pi * f))
 
 EFFECTS: dict[str, EffectType] = {e.name: e for e in (
     EffectType('input_delay', 'the total equivalent input delay is longer than modelled',
@@ -171,6 +200,25 @@ EFFECTS: dict[str, EffectType] = {e.name: e for e in (
                (ParameterSpec('current_limit', 'A', 'current limit', 0.0, 1e9, low_open=True,
                               allow_inf=True),),
                lambda ph, p: replace(ph, current_limit=p['current_limit']), linear=False),
+    EffectType('viscous_friction', 'viscous friction on the rigid-body motion',
+               (ParameterSpec('current_per_velocity', 'A s/deg',
+                              'friction current per rigid-body velocity', 0.0, 1.0),),
+               lambda ph, p: replace(ph, viscous_coefficient=p['current_per_velocity'])),
+    EffectType('cogging_torque', "a torque periodic in the rotor's angle (cogging)",
+               _periodic('A', 'torque (as a current)', 1e3),
+               lambda ph, p: replace(ph, cogging_amplitude=p['amplitude'],
+                                     cogging_period=p['period'], cogging_phase=p['phase']),
+               linear=False),
+    EffectType('encoder_cyclic_error', "a cyclic error of the encoder's reading",
+               _periodic('deg', 'reading error', 10.0),
+               lambda ph, p: replace(ph, encoder_error_amplitude=p['amplitude'],
+                                     encoder_error_period=p['period'],
+                                     encoder_error_phase=p['phase']),
+               linear=False),
+    EffectType('amplifier_bandwidth', "the current amplifier's bandwidth differs",
+               (ParameterSpec('bandwidth', 'Hz', '-3 dB bandwidth of the amplifier lag', 0.0,
+                              1e9, low_open=True, allow_inf=True),),
+               _bandwidth, order=-1),
 )}
 """The registry: every effect type by name."""
 

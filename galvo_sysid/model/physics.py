@@ -5,18 +5,24 @@ are applied (:meth:`PlantModel.physics`): the simulator and the discrepancy work
 it. Signal chain (the DSP's command u is what gets recorded)::
 
     u --pure delay--> amplifier lag --> clip(+-current_limit) --> * gain_ratio
-      --> - friction --> mechanics --> shaft angle y
+      --> - friction + cogging --> mechanics --> shaft angle y --> encoder reading
 
-    mechanics(s) = k0 / (s^2 + w_p^2) + sum_i k_i / (s^2 + 2 zeta_i omega_i s + omega_i^2)
+    mechanics(s) = k0 / (s^2 + c_v s + w_p^2)
+                   + sum_i k_i / (s^2 + 2 zeta_i omega_i s + omega_i^2)
 
 with the pure delay ``computation_delay`` samples plus ``dead_time``, w_p the pivot stiffness
-(0 for a free rigid body) and the Coulomb friction an equivalent current opposing the
-velocity of the rigid-body coordinate (its torque does not scale with ``gain_ratio``).
+(0 for a free rigid body), c_v = k0 ``viscous_coefficient`` the viscous friction (a current
+proportional to the velocity of the rigid-body coordinate), the Coulomb friction an
+equivalent current opposing that velocity and the cogging torque an equivalent current
+periodic in the rigid-body angle p, ``cogging_amplitude`` sin(2 pi p / ``cogging_period`` +
+``cogging_phase``) (:meth:`Physics.cogging`); no friction or cogging torque scales with
+``gain_ratio``. The encoder reads y + ``encoder_error_amplitude`` sin(2 pi y /
+``encoder_error_period`` + ``encoder_error_phase``) (:meth:`Physics.reading`): a cyclic error
+of the reading, not a torque.
 
 Its parameters by name (:meth:`Physics.parameters`) are what plant changes act on
 (:mod:`galvo_sysid.model.changes`): the modal names ``k0``, ``k1``.., ``omega_1``..,
-``zeta_1``.. and ``lag_time_constant``, ``dead_time``, ``friction_current``,
-``pivot_frequency``, ``gain_ratio``, ``current_limit``.
+``zeta_1``.. and those of :data:`PHYSICAL_PARAMETERS`.
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,10 +38,16 @@ from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model.dynamics import check_sample_period
 from galvo_sysid.model.modal import MAX_MAGNITUDE, parameter_names
 
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike, NDArray
+
 __all__ = ['PHYSICAL_PARAMETERS', 'Physics', 'check_parameter_name']
 
 PHYSICAL_PARAMETERS = ('lag_time_constant', 'dead_time', 'friction_current', 'pivot_frequency',
-                       'gain_ratio', 'current_limit')
+                       'gain_ratio', 'current_limit', 'viscous_coefficient',
+                       'cogging_amplitude', 'cogging_period', 'cogging_phase',
+                       'encoder_error_amplitude', 'encoder_error_period',
+                       'encoder_error_phase')
 """Parameters of :class:`Physics` besides the modal ones (names of plant changes)."""
 
 _NAME = re.compile(r'k\d+|omega_[1-9]\d*|zeta_[1-9]\d*|' + '|'.join(PHYSICAL_PARAMETERS))
@@ -67,6 +79,14 @@ class Physics:
         gain_ratio: Torque constant relative to the modal model.
         friction_current: Coulomb friction as an equivalent current [A] (0: none).
         current_limit: Amplifier current limit [A] (inf: none).
+        viscous_coefficient: Viscous friction: equivalent current per rigid-body velocity
+            [A s/deg] (0: none).
+        cogging_amplitude: Cogging torque's amplitude as an equivalent current [A] (0: none).
+        cogging_period: Its period in the rigid-body angle [deg].
+        cogging_phase: Its phase at 0 deg [rad].
+        encoder_error_amplitude: Cyclic error of the encoder's reading [deg] (0: none).
+        encoder_error_period: Its period in the shaft angle [deg].
+        encoder_error_phase: Its phase at 0 deg [rad].
     """
 
     sample_period: float
@@ -81,6 +101,13 @@ class Physics:
     gain_ratio: float = 1.0
     friction_current: float = 0.0
     current_limit: float = math.inf
+    viscous_coefficient: float = 0.0
+    cogging_amplitude: float = 0.0
+    cogging_period: float = 1.0
+    cogging_phase: float = 0.0
+    encoder_error_amplitude: float = 0.0
+    encoder_error_period: float = 1.0
+    encoder_error_phase: float = 0.0
 
     def __post_init__(self) -> None:
         check_sample_period(self.sample_period)
@@ -97,7 +124,12 @@ class Physics:
             raise ConfigurationError('natural frequencies and damping ratios must be positive')
         for name, low, strict in (('dead_time', 0.0, False), ('lag_time_constant', 0.0, False),
                                   ('pivot_frequency', 0.0, False), ('gain_ratio', 0.0, True),
-                                  ('friction_current', 0.0, False)):
+                                  ('friction_current', 0.0, False),
+                                  ('viscous_coefficient', 0.0, False),
+                                  ('cogging_amplitude', 0.0, False),
+                                  ('cogging_period', 0.0, True),
+                                  ('encoder_error_amplitude', 0.0, False),
+                                  ('encoder_error_period', 0.0, True)):
             value = getattr(self, name)
             if not (math.isfinite(value) and (value > low if strict else value >= low)):
                 kind = 'positive' if strict else '>= 0'
@@ -105,6 +137,14 @@ class Physics:
         if math.isnan(self.current_limit) or self.current_limit <= 0:
             raise ConfigurationError(
                 f'current_limit must be positive (inf for none), got {self.current_limit!r}')
+        for name in ('cogging_phase', 'encoder_error_phase'):
+            if not math.isfinite(getattr(self, name)):
+                raise ConfigurationError(f'{name} must be finite')
+        slope = 2 * math.pi * self.encoder_error_amplitude / self.encoder_error_period
+        if slope >= 0.5:
+            raise ConfigurationError(
+                f'encoder error: 2 pi amplitude / period must stay below 0.5 (a reading that '
+                f'keeps increasing with the angle), got {slope:.3g}')
 
     @property
     def n_modes(self) -> int:
@@ -118,8 +158,58 @@ class Physics:
 
     @property
     def linear(self) -> bool:
-        """True without friction and saturation (the closed loop is then linear)."""
-        return self.friction_current == 0 and math.isinf(self.current_limit)
+        """True without Coulomb friction, saturation, cogging and encoder error (the closed
+        loop is then linear)."""  # noqa: D205, D209
+        return (self.friction_current == 0 and math.isinf(self.current_limit)
+                and self.cogging_amplitude == 0 and self.encoder_error_amplitude == 0)
+
+    @property
+    def rigid_damping(self) -> float:
+        """The viscous friction's damping of the rigid body, k0 ``viscous_coefficient`` [1/s]."""
+        return self.k0 * self.viscous_coefficient
+
+    def cogging(self, position: ArrayLike, velocity: ArrayLike) -> NDArray[np.float64]:
+        """Cogging torque [A] held over a sample that starts at ``position`` [deg] with
+        ``velocity`` [deg/s]: its mean over the sample at that constant velocity,
+        a sin(k (p + v T / 2) + phase) sinc(k v T / 2), k = 2 pi / period.
+
+        The simulator and the discrepancy workflow both hold it over each sample.
+        """  # noqa: D205
+        p = np.asarray(position, dtype=float)
+        v = np.asarray(velocity, dtype=float)
+        if self.cogging_amplitude == 0:
+            return np.zeros(np.broadcast(p, v).shape)
+        k = 2 * math.pi / self.cogging_period
+        half = 0.5 * k * v * self.sample_period
+        return np.asarray(self.cogging_amplitude * np.sin(k * p + half + self.cogging_phase)
+                          * np.sinc(half / math.pi), dtype=np.float64)
+
+    def reading(self, angle: ArrayLike) -> NDArray[np.float64]:
+        """The encoder's reading of the shaft angle [deg] (its cyclic error added)."""
+        y = np.asarray(angle, dtype=float)
+        if self.encoder_error_amplitude == 0:
+            return np.array(y, dtype=np.float64)
+        k = 2 * math.pi / self.encoder_error_period
+        return np.asarray(y + self.encoder_error_amplitude * np.sin(k * y
+                                                                   + self.encoder_error_phase),
+                          dtype=np.float64)
+
+    def true_angle(self, reading: ArrayLike) -> NDArray[np.float64]:
+        """The shaft angle [deg] whose reading is ``reading`` (the inverse of
+        :meth:`reading`, by Newton's method: the reading increases with the angle)."""  # noqa: D205, D209
+        r = np.asarray(reading, dtype=float)
+        y = np.array(r, dtype=np.float64)
+        if self.encoder_error_amplitude == 0:
+            return y
+        a, ph = self.encoder_error_amplitude, self.encoder_error_phase
+        k = 2 * math.pi / self.encoder_error_period
+        for _ in range(30):
+            step = (y + a * np.sin(k * y + ph) - r) / (1 + a * k * np.cos(k * y + ph))
+            y = y - step
+            if float(np.max(np.abs(step), initial=0.0)) < 1e-13 * (1 + float(
+                    np.max(np.abs(r), initial=0.0))):
+                break
+        return y
 
     def static_gain(self) -> float:
         """Steady angle per unit applied torque current [deg/A] (inf without a pivot)."""

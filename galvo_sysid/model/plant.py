@@ -168,7 +168,7 @@ class PlantModel:
                      damping_ratios=m.damping_ratios,
                      computation_delay=d.computation_delay, dead_time=d.dead_time,
                      lag_time_constant=d.lag_time_constant)
-        for e in self.effects:
+        for e in sorted(self.effects, key=lambda e: e.kind.order):
             ph = e.act(ph)
         return ph
 

@@ -60,7 +60,8 @@ def continuous_plant(physics: Physics) -> ContinuousPlant:
     a, b_u, b_d, c = modal_state_space(gains=[ph.k0, *ph.residues],
                                        frequencies=[ph.pivot_frequency, *ph.natural_frequencies],
                                        dampings=[0.0, *ph.damping_ratios],
-                                       lag_time_constant=lag, input_gain=ph.gain_ratio)
+                                       lag_time_constant=lag, input_gain=ph.gain_ratio,
+                                       rigid_damping=ph.rigid_damping)
     return ContinuousPlant(a=a, b_u=b_u, b_d=b_d, c=c, current_index=0 if lag > 0 else None,
                            position_index=off, velocity_index=off + 1)
 

@@ -253,7 +253,9 @@ DRIVER_PARAMETERS = (
               'only best-effort subscribers)', choices=RELIABILITY, read_only=True),
     ParamSpec('drift.parameter', '', 'plant parameter that drifts ("" for none; k0, k<i>, '
               'omega_<i>, zeta_<i>, lag_time_constant, dead_time, friction_current, '
-              'pivot_frequency, gain_ratio, current_limit)'),
+              'pivot_frequency, gain_ratio, current_limit, viscous_coefficient, '
+              'cogging_amplitude, cogging_period, cogging_phase, encoder_error_amplitude, '
+              'encoder_error_period, encoder_error_phase)'),
     ParamSpec('drift.rate', 0.0, 'relative change per drift.unit (e.g. -0.001)', -1.0, 1.0),
     ParamSpec('drift.unit', 'second', 'unit of the drift rate', choices=('second', 'move')),
     ParamSpec('step.parameter', '', 'plant parameter that steps ("" for none; names as '

@@ -3,7 +3,9 @@
 :class:`ClosedLoop` is built per plant (the simulator caches it): the sampled plant, the DSP's
 command register (computation delay), the controller state, and, for the nonlinear effects,
 the exact per-sample update (:meth:`ClosedLoop.exact_move`: the quantiser in the loop, the
-amplifier's current limit evaluated on sub-steps, Coulomb friction as a stick-slip law).
+amplifier's current limit evaluated on sub-steps, Coulomb friction as a stick-slip law, the
+cogging torque of the rigid body's angle held over each sample, the encoder's cyclic error
+in the reading).
 :class:`FastBlock` holds the Markov parameters of the linear closed loop over one move, so a
 batch of moves is matrix products and FFT convolutions.
 """
@@ -140,6 +142,14 @@ class ClosedLoop:
         self.v_gain = float(sp.g_d[cp.velocity_index])
         self.gd_sum = gd.sum(axis=1)
         self.i_index = cp.current_index
+        # Cogging: a current of the rigid body's angle and velocity at the sample's start,
+        # held over the sample (Physics.cogging, written out for speed).
+        self.p_index = cp.position_index
+        self.cog = (spec.cogging_amplitude, 2 * math.pi / spec.cogging_period,
+                    spec.cogging_phase, 0.5 * cfg.sample_period)
+        # Encoder cyclic error: the reading of the shaft angle (Physics.reading).
+        self.enc = (spec.encoder_error_amplitude, 2 * math.pi / spec.encoder_error_period,
+                    spec.encoder_error_phase)
 
     def exact_move(self, z: NDArray[np.float64], r: NDArray[np.float64],
                    ff: NDArray[np.float64], n: NDArray[np.float64], v: NDArray[np.float64],
@@ -162,11 +172,18 @@ class ClosedLoop:
         idx_old, idx_new = loop.nx + w, loop.nx + w - 1
         limit, friction = loop.limit, loop.friction
         saturation = math.isfinite(limit)
+        cog_a, cog_k, cog_ph, half_t = loop.cog
+        enc_a, enc_k, enc_ph = loop.enc
+        p_i, v_i = loop.p_index, loop.v_index
+        sin = math.sin
         zk = z.copy()
         floor = math.floor
         for k in range(length):
             out = big @ zk
-            meas = float(out[nz]) + v[k]
+            y = float(out[nz])
+            if enc_a:
+                y += enc_a * sin(enc_k * y + enc_ph)
+            meas = y + v[k]
             if q > 0:
                 meas = floor(meas / q + 0.5) * q
             uk = float(out[nz + 1]) + dc * (r[k] - meas) + ff[k]
@@ -182,6 +199,11 @@ class ClosedLoop:
                 i0 = float(zk[loop.i_index]) if loop.i_index is not None else u_old
                 if max(abs(i0), abs(u_old), abs(u_new)) > limit:
                     z_next += self._saturation(i0, u_old, u_new)
+            if cog_a:
+                half = cog_k * float(zk[v_i]) * half_t
+                sinc = sin(half) / half if half else 1.0
+                z_next += loop.gd_sum * (cog_a * sin(cog_k * float(zk[p_i]) + half + cog_ph)
+                                         * sinc)
             if friction > 0:
                 self._friction(zk, z_next)
             zk = z_next

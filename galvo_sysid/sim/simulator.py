@@ -10,10 +10,12 @@ The loop, sampled at tau = 10 us like the paper's DSP::
 Plant (:class:`galvo_sysid.model.plant.PlantModel`, by default the paper's): the Table I modal
 model, one sample of DSP
 computation delay, the current amplifier's first-order lag (0.6 tau), and optional physical
-effects (dead time, unmodelled resonances, Coulomb friction, pivot stiffness, gain change,
-current saturation). The linear part is sampled exactly (zero-order hold, fractional delays
-split exactly), so the open-loop response of the plant to the recorded current
-(:func:`galvo_sysid.model.modal.simulate`) reproduces the recorded encoder up to the noise.
+effects of the registry (:mod:`galvo_sysid.model.effects`: dead time, unmodelled resonances,
+Coulomb and viscous friction, pivot stiffness, gain change, current saturation, cogging
+torque, encoder cyclic error, amplifier bandwidth). The linear part is sampled exactly
+(zero-order hold, fractional delays split exactly), so the open-loop response of the plant
+to the recorded current (:func:`galvo_sysid.model.modal.simulate`) reproduces the recorded
+encoder up to the noise.
 
 Controller (:mod:`galvo_sysid.sim.controller`, :mod:`galvo_sysid.sim.profiles`): 2-DOF, a
 jerk-limited reference with acceleration feed-forward u_ff = a_ref / k0 plus a PID-type lead
@@ -59,7 +61,10 @@ Two paths compute the same loop:
   per sample: stuck (velocity exactly zero) while the friction needed to hold the rotor is
   at most F, else sliding with -F sign(v); a stop inside a sample ends stuck and a reversal
   splits the sample at the interpolated zero crossing. (0.01 A of friction leaves moves
-  about 1e-3 deg short at the record's end while the integrator winds up.)
+  about 1e-3 deg short at the record's end while the integrator winds up.) The cogging
+  torque is evaluated from the rigid body's angle and velocity at each sample's start (its
+  mean over the sample at that velocity, :meth:`~galvo_sysid.model.physics.Physics.cogging`)
+  and held over the sample; the encoder's cyclic error is added to the angle it reads.
 
 ``method='auto'`` (default) uses ``fast`` for linear plants and ``exact`` otherwise. Both
 paths draw the same random numbers, so without quantisation they agree to rounding error.
@@ -337,7 +342,8 @@ class GalvoSimulator:
             loop = self._loop(spec)
             exact = cfg.method == 'exact' or not spec.linear
             if exact and cfg.method == 'fast':
-                raise ConfigurationError("method 'fast' cannot simulate friction or saturation")
+                raise ConfigurationError("method 'fast' cannot simulate friction, saturation, "
+                                         'cogging or an encoder error')
             # Moves that share this plant (no drift or step in between) run as one batch.
             j = i + 1
             if not exact:

@@ -66,4 +66,13 @@ CASES = [
     ('gain_change', {'gain_ratio': 0.90}, {'gain_ratio': 0.002}),
     ('current_saturation', {'current_limit': 0.95}, {'current_limit': 0.005}),
     ('current_saturation', {'current_limit': 0.80}, {'current_limit': 0.005}),
+    # issue 14's effects (one magnitude each here; two in benchmarks/discrepancy_confusion.py)
+    ('viscous_friction', {'current_per_velocity': 1e-5}, {'current_per_velocity': 0.02}),
+    ('cogging_torque', {'amplitude': 0.01, 'period': 0.7, 'phase': 0.9},
+     {'amplitude': 0.05, 'period': 0.005, 'phase': 0.05}),
+    ('encoder_cyclic_error', {'amplitude': 5e-4, 'period': 0.45, 'phase': -2.0},
+     {'amplitude': 0.02, 'period': 0.005, 'phase': 0.02}),
+    ('amplifier_bandwidth', {'bandwidth': 12e3}, {'bandwidth': 0.01}),
 ]
+PAIRS = 12
+"""CASES[:PAIRS] are the effects of issue 6 at two magnitudes each."""

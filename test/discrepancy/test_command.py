@@ -28,6 +28,8 @@ def test_cli_on_a_bag(tmp_path, capsys):
     assert main(['discrepancy', str(bag), '--json', '--save-model', str(augmented),
                  '--max-effects', '1']) == 0
     data = json.loads(capsys.readouterr().out)
+    assert data['verdict'] == 'named'
+    assert data['summary'].startswith('named: gain_change (gain_ratio=0.95')
     assert data['effect'] == 'gain_change'
     assert data['parameters']['gain_ratio'] == pytest.approx(0.95, rel=0.002)
     assert data['gap_after'] <= 0.5 * data['gap_before']
@@ -35,7 +37,7 @@ def test_cli_on_a_bag(tmp_path, capsys):
     assert main(['discrepancy', str(bag), '--model', str(augmented), '--effects',
                  'gain_change', 'coulomb_friction']) == 0
     text = capsys.readouterr().out
-    assert 'found: none' in text
+    assert 'verdict: consistent: the model explains the moves within the noise' in text
     assert main(['discrepancy', str(tmp_path / 'missing')]) == 1
     assert 'error' in capsys.readouterr().err
     bad = tmp_path / 'bad.yaml'

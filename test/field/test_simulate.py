@@ -70,6 +70,30 @@ def test_effect_and_step_reach_the_plant(tmp_path: Path) -> None:
     assert deviation[-1] == pytest.approx(-0.02, abs=0.003)
 
 
+@pytest.mark.parametrize('effect', [
+    'viscous_friction:current_per_velocity=1e-5',
+    'cogging_torque:amplitude=0.01,period=0.7,phase=0.3',
+    'encoder_cyclic_error:amplitude=1e-3,period=0.5,phase=-1',
+    'amplifier_bandwidth:bandwidth=12000',
+])
+def test_every_new_effect_can_be_simulated(tmp_path: Path, effect: str) -> None:
+    """`galvo-sysid simulate --effect NAME:...` for the effects of issue 14 (the registry's)."""
+    from galvo_sysid.cli.main import main
+
+    bag = tmp_path / 'b'
+    assert main(['simulate', '--out', str(bag), '--angles', '1psi', '--moves-per-angle', '4',
+                 '--effect', effect]) == 0
+    nominal = simulate_bag(tmp_path / 'n', angles=[0.3], moves_per_angle=4)
+    with BagReader(bag) as reader:
+        enc = [h.data for h in reader.move_halves()
+               if isinstance(h, MoveHalf) and h.signal == 'encoder']
+    with BagReader(nominal.path) as reader:
+        ref = [h.data for h in reader.move_halves()
+               if isinstance(h, MoveHalf) and h.signal == 'encoder']
+    assert len(enc) == 4
+    assert max(np.abs(a - b).max() for a, b in zip(enc, ref, strict=True)) > 1e-4
+
+
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
 def test_bag_says_jazzy_and_the_qos_the_driver_offers(tmp_path: Path, storage: str) -> None:
     from rosbags.interfaces import QosDurability, QosHistory, QosReliability

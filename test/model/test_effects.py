@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from galvo_sysid.errors import ConfigurationError
@@ -17,6 +18,10 @@ PARAMS = {
     'pivot_stiffness': {'natural_frequency': 300.0},
     'gain_change': {'gain_ratio': 0.9},
     'current_saturation': {'current_limit': 0.7},
+    'viscous_friction': {'current_per_velocity': 1e-5},
+    'cogging_torque': {'amplitude': 0.01, 'period': 0.7, 'phase': 0.3},
+    'encoder_cyclic_error': {'amplitude': 1e-3, 'period': 0.5, 'phase': -1.0},
+    'amplifier_bandwidth': {'bandwidth': 15e3},
 }
 
 
@@ -27,7 +32,14 @@ def test_every_effect_acts_as_registered() -> None:
         model = model.with_effect(name, p)
     ph = model.physics()
     assert ph.pure_delay + ph.lag_time_constant == pytest.approx(2.1 * TAU)
-    assert ph.dead_time == pytest.approx(0.5 * TAU)
+    lag = 1 / (2 * math.pi * 15e3)               # the amplifier's, before the input delay
+    assert ph.lag_time_constant == pytest.approx(lag)
+    assert ph.dead_time == pytest.approx(1.1 * TAU - lag)
+    assert ph.viscous_coefficient == 1e-5
+    assert ph.rigid_damping == pytest.approx(1e-5 * PAPER_MODEL.modal.k0)
+    assert (ph.cogging_amplitude, ph.cogging_period, ph.cogging_phase) == (0.01, 0.7, 0.3)
+    assert (ph.encoder_error_amplitude, ph.encoder_error_period,
+            ph.encoder_error_phase) == (1e-3, 0.5, -1.0)
     assert ph.friction_current == 0.01
     assert ph.pivot_frequency == 300.0
     assert ph.gain_ratio == 0.9
@@ -43,9 +55,11 @@ def test_every_effect_acts_as_registered() -> None:
 
 def test_linear_flags_of_the_registry() -> None:
     nonlinear = {n for n, e in EFFECTS.items() if not e.linear}
-    assert nonlinear == {'coulomb_friction', 'current_saturation'}
-    for name in nonlinear:
-        assert not PAPER_MODEL.with_effect(name, PARAMS[name]).physics().linear
+    assert nonlinear == {'coulomb_friction', 'current_saturation', 'cogging_torque',
+                         'encoder_cyclic_error'}
+    for name, params in PARAMS.items():
+        assert PAPER_MODEL.with_effect(name, params).physics().linear == (
+            name not in nonlinear)
 
 
 def test_repeatable_effects_add_up_others_replace() -> None:
@@ -72,10 +86,50 @@ def test_repeatable_effects_add_up_others_replace() -> None:
     ('input_delay', {'delay': 1e8}),
     ('unmodeled_resonance', {'natural_frequency': 1e4, 'damping_ratio': 0.0, 'residue': 1.0}),
     ('unmodeled_resonance', {'natural_frequency': 1e4, 'damping_ratio': 0.1, 'residue': 1e200}),
+    ('viscous_friction', {'current_per_velocity': -1e-5}),
+    ('cogging_torque', {'amplitude': 0.01, 'period': 0.0, 'phase': 0.0}),
+    ('cogging_torque', {'amplitude': -0.01, 'period': 1.0, 'phase': 0.0}),
+    ('cogging_torque', {'amplitude': 0.01, 'period': 1.0, 'phase': 4.0}),
+    ('cogging_torque', {'amplitude': 0.01, 'period': 1.0}),
+    ('encoder_cyclic_error', {'amplitude': 0.1, 'period': 1.0, 'phase': 0.0}),  # not monotone
+    ('amplifier_bandwidth', {'bandwidth': 0.0}),
+    ('amplifier_bandwidth', {'bandwidth': 1e3}),    # its lag exceeds the input_delay below
 ])
 def test_bad_effects_raise(name: str, params: dict[str, object]) -> None:
+    base = (PAPER_MODEL.with_effect('input_delay', {'delay': 3 * TAU})
+            if name == 'amplifier_bandwidth' else PAPER_MODEL)
     with pytest.raises(ConfigurationError):
-        PAPER_MODEL.with_effect(name, params)
+        base.with_effect(name, params)
+
+
+def test_amplifier_bandwidth_acts_before_the_input_delay_in_any_order() -> None:
+    a = PAPER_MODEL.with_effect('amplifier_bandwidth', {'bandwidth': 10e3}).with_effect(
+        'input_delay', {'delay': 3 * TAU})
+    b = PAPER_MODEL.with_effect('input_delay', {'delay': 3 * TAU}).with_effect(
+        'amplifier_bandwidth', {'bandwidth': 10e3})
+    assert a.physics() == b.physics()
+    assert a.physics().pure_delay + a.physics().lag_time_constant == pytest.approx(3 * TAU)
+    none = PAPER_MODEL.with_effect('amplifier_bandwidth', {'bandwidth': math.inf})
+    assert none.physics().lag_time_constant == 0.0
+
+
+def test_encoder_reading_and_its_inverse() -> None:
+    ph = PAPER_MODEL.with_effect('encoder_cyclic_error', PARAMS['encoder_cyclic_error']).physics()
+    y = np.linspace(-3.0, 3.0, 1001)
+    reading = ph.reading(y)
+    assert np.max(np.abs(reading - y)) == pytest.approx(1e-3, rel=1e-3)
+    np.testing.assert_allclose(ph.true_angle(reading), y, atol=1e-13)
+    np.testing.assert_array_equal(PAPER_MODEL.physics().reading(y), y)
+
+
+def test_cogging_is_the_mean_torque_over_the_sample() -> None:
+    """Held over a sample from (p, v): the exact mean of a sin(2 pi p / P + phase) along
+    p + v t, so fast moves over short periods are not aliased."""
+    ph = PAPER_MODEL.with_effect('cogging_torque', PARAMS['cogging_torque']).physics()
+    t = (np.arange(4000) + 0.5) / 4000 * TAU
+    for p0, v in ((0.1, 0.0), (0.2, 3000.0), (-1.0, -20000.0)):
+        path = 0.01 * np.sin(2 * math.pi * (p0 + v * t) / 0.7 + 0.3)
+        assert float(ph.cogging(p0, v)) == pytest.approx(path.mean(), abs=1e-9)
 
 
 def test_bad_effect_lists_raise() -> None:

@@ -206,7 +206,9 @@ def test_numbers_are_read_like_ros_does():
 
 def test_effect_contract():
     assert EFFECT_NAMES == ('input_delay', 'unmodeled_resonance', 'coulomb_friction',
-                            'pivot_stiffness', 'gain_change', 'current_saturation')
+                            'pivot_stiffness', 'gain_change', 'current_saturation',
+                            'viscous_friction', 'cogging_torque', 'encoder_cyclic_error',
+                            'amplifier_bandwidth')
     e = Effect.create('unmodeled_resonance', {'residue': -1.0, 'natural_frequency': 2.0,
                                               'damping_ratio': 0.1})
     assert [k for k, _ in e.parameters] == ['natural_frequency', 'damping_ratio', 'residue']

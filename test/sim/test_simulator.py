@@ -320,6 +320,56 @@ def test_gain_change_overshoots() -> None:
     assert hot.encoder[60:120].max() - 0.3 > nominal.encoder[60:120].max() - 0.3 + 1e-3
 
 
+def test_viscous_friction_damps_the_rigid_body_on_both_paths() -> None:
+    """Viscous friction is linear: the fast path runs it and agrees with the exact one; a
+    current proportional to the speed makes the fast moves lag behind."""
+    plant = PAPER_MODEL.with_effect('viscous_friction', {'current_per_velocity': 1e-5})
+    fast = _sim(plant=plant, **QUIET).run_move(3.0)
+    exact = _sim(plant=plant, method='exact', **QUIET).run_move(3.0)
+    np.testing.assert_allclose(fast.encoder, exact.encoder, atol=1e-9)
+    nominal = _sim(**QUIET).run_move(3.0)
+    assert (nominal.encoder[40:70] - fast.encoder[40:70]).min() > 5e-4
+    assert fast.encoder[-20:].mean() == pytest.approx(3.0, abs=3e-3)
+
+
+def test_cogging_torque_is_held_by_the_controller() -> None:
+    """At rest the integrator holds the current that balances the cogging torque there."""
+    cog = {'amplitude': 0.02, 'period': 0.7, 'phase': 0.3}
+    plant = PAPER_MODEL.with_effect('cogging_torque', cog)
+    sim = _sim(plant=plant, **QUIET)
+    for target in (0.5, 0.4):
+        sim.run_move(target - sim.position)
+        move = sim.run_move(1e-6)         # settling on
+        hold = -0.02 * math.sin(2 * math.pi * target / 0.7 + 0.3)
+        assert abs(hold) > 0.01
+        assert move.current[-30:].mean() == pytest.approx(hold, abs=1e-3)
+        assert move.encoder[-30:].mean() == pytest.approx(target, abs=3e-4)
+
+
+def test_encoder_cyclic_error_is_in_the_reading_not_the_shaft() -> None:
+    """The controller servoes on the reading: the encoder settles on the target, the shaft
+    at the angle whose reading that is (the open-loop plant of the current shows it)."""
+    err = {'amplitude': 2e-3, 'period': 0.5, 'phase': 1.0}
+    plant = PAPER_MODEL.with_effect('encoder_cyclic_error', err)
+    sim = _sim(plant=plant, **QUIET)
+    sim.run_move(0.0 + 1e-9)          # settle on the reading of 0
+    move = sim.run_move(0.3)
+    assert move.encoder[-30:].mean() == pytest.approx(0.3, abs=3e-5)
+    shaft = float(plant.physics().true_angle(0.3))
+    assert abs(shaft - 0.3) > 1e-3
+    y = _open_loop(move)
+    start = float(plant.physics().true_angle(move.encoder[0]))
+    assert (y[-30:] - y[0] + start).mean() == pytest.approx(shaft, abs=2e-5)
+
+
+def test_amplifier_bandwidth_is_the_lag() -> None:
+    plant = PAPER_MODEL.with_effect('amplifier_bandwidth', {'bandwidth': 10e3})
+    move = _sim(plant=plant, **QUIET).run_move(0.3)
+    lag = InputDynamics(lag_time_constant=1 / (2 * math.pi * 10e3))
+    np.testing.assert_allclose(move.encoder, _open_loop(move, dynamics=lag), atol=1e-9)
+    assert np.abs(move.encoder - _open_loop(move)).max() > 1e-4
+
+
 # --------------------------------------------------------------------------- plant changes
 
 
