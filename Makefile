@@ -40,7 +40,7 @@ test: setup
 	$(VPY) -m pytest -q test
 
 lint: setup
-	$(VENV)/bin/ruff check galvo_sysid test benchmarks tools
+	$(VENV)/bin/ruff check galvo_sysid test benchmarks tools launch
 	$(VENV)/bin/mypy galvo_sysid
 
 # Speed and accuracy figures (tables on stdout; latest output in docs/benchmarks.md).

@@ -15,6 +15,7 @@ setup(
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),
         (f'share/{PACKAGE}/config', glob('config/*.yaml') + glob('config/*.xml')),
+        (f'share/{PACKAGE}/launch', glob('launch/*.launch.py')),
         (f'share/{PACKAGE}/models', glob(f'{PACKAGE}/model/data/*.yaml')),
     ],
     install_requires=['setuptools'],
@@ -26,9 +27,9 @@ setup(
     python_requires='>=3.11',
     entry_points={
         'console_scripts': [
-            f'galvo_driver = {PACKAGE}.nodes.driver_node:main',
-            f'sysid = {PACKAGE}.nodes.sysid_node:main',
-            f'watchdog = {PACKAGE}.nodes.watchdog_node:main',
+            f'galvo_driver = {PACKAGE}.nodes.command_line:galvo_driver',
+            f'sysid = {PACKAGE}.nodes.command_line:sysid',
+            f'watchdog = {PACKAGE}.nodes.command_line:watchdog',
             f'galvo-sysid = {PACKAGE}.cli.main:main',
         ],
     },

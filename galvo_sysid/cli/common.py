@@ -125,6 +125,16 @@ def nonnegative_int(text: str) -> int:
     return int(_number(text, int, 'a whole number', '>= 0', lambda value: value >= 0))
 
 
+def dither_amplitude(text: str) -> float:
+    """An argument type: a dither tone amplitude [A], 0 .. 0.5 (``10mA`` is read too)."""
+    scale = 1.0
+    if text.lower().endswith('ma'):
+        text, scale = text[:-2], 1e-3
+    value = _number(text, float, 'a current [A]', 'within 0..0.5 A',
+                    lambda v: 0 <= v * scale <= 0.5)
+    return value * scale
+
+
 def finite_float(text: str) -> float:
     """An argument type: a finite number (no NaN or infinity)."""
     return _number(text, float, 'a number', 'finite', math.isfinite)

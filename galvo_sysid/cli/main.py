@@ -5,9 +5,14 @@ Subcommands (``galvo-sysid <command> --help`` explains each; one module each in
 shared pieces in :mod:`galvo_sysid.cli.common`):
 
 - offline, no ROS graph needed: ``simulate`` (write a bag from the simulated scanner),
-  ``identify`` (identify the plant from a bag), ``info`` (what a bag holds);
-- live, on the ROS 2 graph: ``record``, ``replay``, ``echo`` (stand-ins for ``ros2 bag record``,
-  ``ros2 bag play`` and ``ros2 topic echo`` where ros2cli is not installed).
+  ``identify`` (identify the plant from a bag), ``info`` (what a bag holds), and as
+  plugins ``import`` (your own data, CSV / .npz / .mat, into a bag), ``commission``,
+  ``discrepancy``, ``plan``;
+- live, on the ROS 2 graph: ``record``, ``replay``, ``echo``, ``topic`` (``list``, ``hz``),
+  ``param`` (``list``, ``get``, ``set``, ``describe``, ``dump``): stand-ins for ``ros2 bag
+  record``, ``ros2 bag play``, ``ros2 topic echo|list|hz`` and ``ros2 param`` where ros2cli
+  is not installed; ``launch`` (plugin: the three nodes as child processes, for ``ros2 launch
+  galvo_sysid monitor.launch.py``).
 
 Other modules add subcommands by being listed in :data:`PLUGINS` and defining
 ``register(subparsers)`` (see :func:`build_parser`).
@@ -26,7 +31,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from galvo_sysid import limit_blas_threads
-from galvo_sysid.cli import bag, echo, identify, info, record, replay, simulate
+from galvo_sysid.cli import bag, echo, identify, info, param, record, replay, simulate, topic
 from galvo_sysid.cli.common import guarded
 
 if TYPE_CHECKING:
@@ -36,7 +41,8 @@ __all__ = ['COMMANDS', 'PLUGINS', 'build_parser', 'main']
 
 PROG = 'galvo-sysid'
 
-PLUGINS = ('galvo_sysid.cli.commission', 'galvo_sysid.cli.discrepancy')
+PLUGINS = ('galvo_sysid.cli.commission', 'galvo_sysid.cli.discrepancy', 'galvo_sysid.cli.plan',
+           'galvo_sysid.cli.import_data', 'galvo_sysid.cli.launch')
 """Modules that add subcommands if present: each defines ``register(subparsers)``, which adds
 its parser(s) and sets ``func`` (``args -> exit code``) as the parser default. ``register``
 runs for every command except the built-in ones of :data:`COMMANDS` (so also for ``--help``
@@ -44,11 +50,12 @@ and the plugins' own commands); it should import nothing heavy: the numerics bel
 ``func``. Errors of bad input raised by ``func`` become one line on stderr and exit code 1
 (:func:`~galvo_sysid.cli.common.guarded`)."""
 
-COMMANDS = ('simulate', 'identify', 'info', 'record', 'replay', 'echo', 'bag')
+COMMANDS = ('simulate', 'identify', 'info', 'record', 'replay', 'echo', 'topic', 'param',
+            'bag')
 """The built-in subcommands: running one of them registers no plugin (process start counts,
 e.g. in identify's speed against real time)."""
 
-_BUILTIN = (simulate, identify, info, record, replay, echo, bag)  # COMMANDS' modules, in order
+_BUILTIN = (simulate, identify, info, record, replay, echo, topic, param, bag)  # as COMMANDS
 
 _MAIN_HELP = """\
 Field tools for galvano-scanner system identification (galvo_sysid).
@@ -70,13 +77,23 @@ a first session (no ROS graph needed):
   galvo-sysid identify /tmp/run1 --json > run1.json
   galvo-sysid identify bags/drifting --plot drift.png
 
+your own data (CSV, NumPy .npz or MATLAB .mat; the layout: galvo-sysid import --help):
+  galvo-sysid import moves.npz --out /tmp/mine
+  galvo-sysid identify /tmp/mine
+
 your own scanner (commission once, then monitor):
   galvo-sysid commission healthy.mcap --out scanner.yaml --plot scanner_bode.png
   galvo-sysid identify later.mcap --model scanner.yaml
 
 on a running system (galvo_driver, sysid, watchdog nodes):
-  galvo-sysid record --out /tmp/field1 --duration 30
+  galvo-sysid launch --namespace scanner_1     # the three nodes (Ctrl-C stops them)
+  galvo-sysid topic list -t
+  galvo-sysid topic hz /galvo/current
   galvo-sysid echo /galvo/modal_parameters --once
+  galvo-sysid echo /galvo/drift --field level
+  galvo-sysid param set /galvo_driver step.factor 0.98
+  galvo-sysid param dump /sysid > sysid_now.yaml
+  galvo-sysid record --out /tmp/field1 --duration 30
   galvo-sysid replay /tmp/field1 --rate 2
 
 exit codes: 0 ok, 1 bad input or nothing identified, 2 usage error, 130 interrupted

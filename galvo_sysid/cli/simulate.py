@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 from galvo_sysid.cli.common import (
     add_subcommand,
     bounded_int,
+    dither_amplitude,
     nonnegative_int,
     parse_angle,
     positive,
@@ -83,6 +84,13 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument('--effect', action='append', default=[], metavar='NAME[:K=V,...]',
                    help='add a physical effect the reference model lacks (see the '
                         'simulator docs), e.g. coulomb_friction:friction_current=0.05')
+    p.add_argument('--dither', type=dither_amplitude, default=0.0, metavar='AMPLITUDE',
+                   help="tones of this amplitude [A, or e.g. 10mA] at the model's resonances "
+                        "added to every move's current command (as the driver's "
+                        'dither.amplitude; galvo-sysid plan says what a dither buys and costs)')
+    p.add_argument('--dither-modes', default='all', metavar='MODES',
+                   help="the resonances the dither tones sit at: 'all' or mode numbers, "
+                        "comma-separated, e.g. 3 (default: all)")
     return p
 
 
@@ -96,9 +104,12 @@ def run(args: argparse.Namespace) -> int:
     from galvo_sysid.field.simulate import simulate_bag
     from galvo_sysid.model import load_model
     from galvo_sysid.sim.config import SimulatorConfig
+    from galvo_sysid.sim.dither import dither_for_modes
 
-    config = SimulatorConfig(plant=load_model(args.model or None),
-                             record_length=args.record_length, dwell_length=args.dwell_length)
+    model = load_model(args.model or None)
+    config = SimulatorConfig(plant=model, record_length=args.record_length,
+                             dwell_length=args.dwell_length,
+                             dither=dither_for_modes(args.dither, args.dither_modes, model=model))
     summary = simulate_bag(args.out, angles=angles(args.angles),
                            moves_per_angle=args.moves_per_angle, seed=args.seed,
                            storage=args.storage, drift=args.drift, steps=args.step,

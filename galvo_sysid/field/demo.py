@@ -3,7 +3,8 @@
 Starts ``galvo_driver`` (the simulated scanner, real time, the paper's 19 angles), ``sysid``
 and ``watchdog`` as separate processes on this machine's ROS 2 graph, and prints one line per
 identified window with the watchdog's verdict. Then it changes the simulated plant through
-the driver's parameters, as an operator would with ``ros2 param set``:
+the driver's parameters, as an operator would with ``galvo-sysid param set`` (or
+``ros2 param set`` on a full ROS 2 install):
 
 1. healthy scanner: every window OK;
 2. a step: omega_1 (first resonance) drops 2 %: flagged ERROR;

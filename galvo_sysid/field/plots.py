@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from galvo_sysid.errors import ConfigurationError, InvalidDataError
-from galvo_sysid.model import REFERENCE_MODEL, TAU, InputDynamics, ModalModel
+from galvo_sysid.model import REFERENCE_MODEL, TAU, InputDynamics, ModalModel, parameter_mode
 from galvo_sysid.model.dynamics import discretize
 
 if TYPE_CHECKING:
@@ -158,12 +158,6 @@ def plot_bode(ax_mag: Any, ax_phase: Any, models: Sequence[ModalModel], *,
         ax.set_xlim(f[0], f[-1])
 
 
-def _mode_of(name: str) -> int:
-    """The 1-based mode of a parameter name (0 for k0)."""
-    tail = name.rsplit('_', 1)[-1] if '_' in name else name[1:]
-    return int(tail) if tail.isdigit() else 0
-
-
 def _times(windows: Sequence[WindowResult]) -> tuple[NDArray[np.float64], str]:
     """Each window's end, in seconds since the first move (window index without stamps)."""
     first = np.array([w.first_stamp for w in windows], dtype=float)
@@ -199,7 +193,7 @@ def plot_trends(axes: Sequence[Any], windows: Sequence[WindowResult], *,
     order = np.argsort(x, kind='stable')
     for ax, name in zip(axes, chosen, strict=False):
         j = all_names.index(name)
-        mode = _mode_of(name)
+        mode = parameter_mode(name)
         resolved = np.array([mode == 0 or mode > len(w.result.resolved)
                              or bool(w.result.resolved[mode - 1]) for w in windows])
         dev = 100 * np.array([w.drift.relative_deviation[j] for w in windows])

@@ -32,7 +32,7 @@ import shutil
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.field.bags import CURRENT_TOPIC, ENCODER_TOPIC, BagWriter, stamp_to_ns
@@ -44,6 +44,8 @@ if TYPE_CHECKING:
     import os
     from collections.abc import Iterable, Iterator, Sequence
 
+    from numpy.typing import ArrayLike
+
     from galvo_sysid.model.changes import Drift, StepChange
     from galvo_sysid.sim.config import Move, SimulatorConfig
     from galvo_sysid.sim.simulator import GalvoSimulator
@@ -51,10 +53,13 @@ if TYPE_CHECKING:
 __all__ = [
     'CHUNK',
     'SimulationSummary',
+    'check_space',
+    'driver_qos',
     'parse_drift',
     'parse_step',
     'schedule_limits',
     'simulate_bag',
+    'write_move',
     'write_moves',
 ]
 
@@ -72,6 +77,18 @@ def schedule_limits() -> dict[str, tuple[int, int]]:
 
     return {s.name: (int(s.low or 0), int(s.high or 0)) for s in DRIVER_PARAMETERS
             if s.name in {'moves_per_angle', 'seed'}}
+
+
+def driver_qos() -> dict[str, Any]:
+    """The QoS ``galvo_driver`` offers on the move topics with its default parameters
+    (``qos_depth``, ``qos_reliability``; volatile): what a simulated bag stores as offered,
+    as ``ros2 bag record`` of the live driver would (keyword arguments of
+    :meth:`~galvo_sysid.field.bags.BagWriter.add_topic`)."""  # noqa: D205, D209
+    from galvo_sysid.monitor.parameters import defaults
+
+    values = defaults('galvo_driver')
+    return {'reliable': values['qos_reliability'] == 'reliable', 'transient_local': False,
+            'depth': values['qos_depth']}
 
 
 _NUMBER = r'[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?'
@@ -167,15 +184,27 @@ def write_moves(bag: BagWriter, moves: Iterable[Move], *, frame_id: str = '') ->
     """
     count = 0
     for move in moves:
-        ns = stamp_to_ns(move.stamp)
-        for topic, data in ((CURRENT_TOPIC, move.current), (ENCODER_TOPIC, move.encoder)):
-            msg = bag.move_samples(stamp=move.stamp, move_id=move.move_id,
-                                   target_angle=move.target_angle,
-                                   sample_period=move.sample_period, data=data,
-                                   frame_id=frame_id)
-            bag.write(topic, ns, msg)
+        write_move(bag, move_id=move.move_id, target_angle=move.target_angle,
+                   stamp=move.stamp, sample_period=move.sample_period, current=move.current,
+                   encoder=move.encoder, frame_id=frame_id)
         count += 1
     return count
+
+
+def write_move(bag: BagWriter, *, move_id: int, target_angle: float, stamp: float,
+               sample_period: float, current: ArrayLike, encoder: ArrayLike,
+               frame_id: str = '') -> None:
+    """Write one move as the driver node publishes it (what :func:`write_moves` writes).
+
+    One ``MoveSamples`` on :data:`~galvo_sysid.field.bags.CURRENT_TOPIC`, then one on
+    :data:`~galvo_sysid.field.bags.ENCODER_TOPIC`, with the same ``move_id``; header stamp
+    and log time ``stamp`` [s]. The bag must have both topics added as ``MoveSamples``.
+    """
+    ns = stamp_to_ns(stamp)
+    for topic, data in ((CURRENT_TOPIC, current), (ENCODER_TOPIC, encoder)):
+        msg = bag.move_samples(stamp=stamp, move_id=move_id, target_angle=target_angle,
+                               sample_period=sample_period, data=data, frame_id=frame_id)
+        bag.write(topic, ns, msg)
 
 
 def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
@@ -235,11 +264,10 @@ def simulate_bag(out: str | os.PathLike[str], *, angles: Sequence[float],
     sim = GalvoSimulator(config=cfg, seed=seed)
     sim.check_angles(angles)
     path = Path(out)
-    _check_space(path, moves=len(angles) * moves_per_angle,
-                 samples=sim.config.record)
+    check_space(path, moves=len(angles) * moves_per_angle, samples=sim.config.record)
     with atomic_bag(path) as partial, BagWriter(partial, storage=storage) as bag:
-        bag.add_topic(CURRENT_TOPIC, MOVE_SAMPLES)
-        bag.add_topic(ENCODER_TOPIC, MOVE_SAMPLES)
+        for topic in (CURRENT_TOPIC, ENCODER_TOPIC):
+            bag.add_topic(topic, MOVE_SAMPLES, **driver_qos())
         count = write_moves(bag, _schedule(sim, angles, moves_per_angle), frame_id=frame_id)
     size = sum(p.stat().st_size for p in path.rglob('*') if p.is_file())
     changes = (*(f'drift {d}' for d in drift), *(f'step {s}' for s in steps),
@@ -268,7 +296,7 @@ def _schedule(sim: GalvoSimulator, angles: Sequence[float],
             left -= n
 
 
-def _check_space(path: Path, *, moves: int, samples: int) -> None:
+def check_space(path: Path, *, moves: int, samples: int) -> None:
     """Refuse a bag that cannot fit on the disk it goes to (before the first move).
 
     Raises:

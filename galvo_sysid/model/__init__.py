@@ -32,6 +32,7 @@ from galvo_sysid.model.files import (
 from galvo_sysid.model.modal import (
     ModalModel,
     default_bands,
+    parameter_mode,
     parameter_names,
     parameter_unit,
     relative_errors,
@@ -71,6 +72,7 @@ __all__ = [
     'model_from_yaml',
     'model_label',
     'model_to_yaml',
+    'parameter_mode',
     'parameter_names',
     'parameter_unit',
     'parse_effect',

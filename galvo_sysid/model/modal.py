@@ -27,6 +27,7 @@ __all__ = [
     'Band',
     'ModalModel',
     'default_bands',
+    'parameter_mode',
     'parameter_names',
     'parameter_unit',
     'relative_errors',
@@ -45,6 +46,13 @@ def parameter_names(n_modes: int) -> tuple[str, ...]:
     return ('k0', *(f'k{i}' for i in range(1, n_modes + 1)),
             *(f'omega_{i}' for i in range(1, n_modes + 1)),
             *(f'zeta_{i}' for i in range(1, n_modes + 1)))
+
+
+def parameter_mode(name: str) -> int:
+    """The 1-based resonant mode of a parameter name (``k2``, ``omega_2``, ``zeta_2``: 2), 0
+    for ``k0``."""  # noqa: D205, D209
+    tail = name.rsplit('_', 1)[-1] if '_' in name else name[1:]
+    return int(tail) if tail.isdigit() else 0
 
 
 def parameter_unit(name: str) -> str:

@@ -292,10 +292,14 @@ class DriftMonitor:
         level = OK
         flagged: list[str] = []
         notes: list[str] = []
+        coarse: list[str] = []  # tolerances the window's data cannot tell apart from noise
         for name, d, s, t in zip(self.names, dev, rel_std, tol, strict=True):
             if name in skip:
                 continue
-            significant = abs(d) > self.n_sigma * math.hypot(s, self.noise_floor[name])
+            reach = self.n_sigma * math.hypot(s, self.noise_floor[name])
+            if reach > t:
+                coarse.append(name)
+            significant = abs(d) > reach
             if significant and abs(d) > t:
                 level = ERROR
                 flagged.append(name)
@@ -318,6 +322,9 @@ class DriftMonitor:
             flagged.append(name)
             notes.append(f'{name} drifting {_pct(slope)}/window, now {_pct(now)} '
                          f'(tolerance {100 * t:g} %)')
+        coarse_note = ('tolerance tighter than the data resolve (' + ', '.join(
+            f'{n}: {self.n_sigma:g} std = {100 * self.n_sigma * rel_std[self.names.index(n)]:.3g}'
+            f' % > {100 * self.tolerances[n]:g} %' for n in coarse) + ')') if coarse else ''
         if notes:
             message = f'{LEVEL_NAMES[level]}: ' + '; '.join(notes)
             if unresolved_note:
@@ -329,12 +336,14 @@ class DriftMonitor:
                        f'{self.names[worst]} {_pct(dev[worst])} of {100 * tol[worst]:g} %)')
             if unresolved_note:
                 message += f'; {unresolved_note}'
+        if coarse_note:
+            message += f'; {coarse_note}'
         return DriftVerdict(
             window_index=window_index, level=level, names=self.names,
             relative_deviation=tuple(dev), tolerance=tol, message=message,
             relative_std=tuple(rel_std),
             trend_per_window=tuple(self._last_slope.get(n, math.nan) for n in self.names),
-            flagged=tuple(flagged), target_angle=angle)
+            flagged=tuple(flagged), target_angle=angle, unresolvable=tuple(coarse))
 
     def _mismatch(self, window_index: int, angle: float, why: str) -> DriftVerdict:
         """A MISMATCH verdict: the data do not match the reference model, and why."""

@@ -263,6 +263,11 @@ DRIVER_PARAMETERS = (
     ParamSpec('effects', '[]', "physical effects added to the model's, as JSON: [{\"effect\": "
               'name, "parameters": {...}}, ...] (see galvo_sysid.model.effects)',
               max_length=MAX_EFFECTS_TEXT, multiline=True),
+    ParamSpec('dither.amplitude', 0.0, "amplitude of each dither tone added to every move's "
+              'current command [A] (0: none; galvo-sysid plan says what it buys and costs)',
+              0.0, 0.5, read_only=True),
+    ParamSpec('dither.modes', 'all', "the model's resonances the dither tones sit at: 'all' or "
+              "mode numbers, comma-separated (e.g. '3')", max_length=64, read_only=True),
 )
 """Parameters of the simulated scanner (``galvo_driver``)."""
 

@@ -61,6 +61,9 @@ class DriftVerdict:
             trend test has enough windows).
         flagged: The parameters that raised the level.
         target_angle: Target angle of the window [deg].
+        unresolvable: Judged parameters whose tolerance is tighter than the window resolves
+            (``n_sigma`` of its std, with the noise floor, beyond the tolerance): a drift up
+            to the tolerance cannot be told from noise there (said in the message too).
     """
 
     window_index: int
@@ -73,6 +76,7 @@ class DriftVerdict:
     trend_per_window: tuple[float, ...] = ()
     flagged: tuple[str, ...] = ()
     target_angle: float = math.nan
+    unresolvable: tuple[str, ...] = ()
 
     @property
     def level_name(self) -> str:
@@ -90,6 +94,7 @@ class DriftVerdict:
             'message': self.message,
             'target_angle': finite_or_none(self.target_angle),
             'flagged': list(self.flagged),
+            'tolerance_unresolvable': list(self.unresolvable),
             'deviations': by_name(self.relative_deviation),
             'tolerances': by_name(self.tolerance),
             'relative_std': by_name(self.relative_std),

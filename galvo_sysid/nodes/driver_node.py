@@ -10,9 +10,9 @@ the move's first sample: ``stamp_origin`` + simulated time).
 
 Pace: ``rate_factor`` 1 is real time (165 moves/s back to back), 10 ten times faster, 0 as
 fast as possible. Plant changes take effect from the next move when their parameters are set
-(at start-up or live with ``ros2 param set``): ``drift.*`` (a parameter drifting linearly),
-``step.*`` (a step change) and ``effects`` (the physical effects, as the discrepancy
-workflow's JSON list).
+(at start-up or live with ``galvo-sysid param set``, or ``ros2 param set`` on a full ROS 2
+install): ``drift.*`` (a parameter drifting linearly), ``step.*`` (a step change) and
+``effects`` (the physical effects, as the discrepancy workflow's JSON list).
 
 The parameters are :data:`galvo_sysid.monitor.parameters.DRIVER_PARAMETERS`.
 
@@ -40,6 +40,7 @@ from galvo_sysid.model.changes import plant_at
 from galvo_sysid.model.effects import Effect, effects_from_json
 from galvo_sysid.model.physics import check_parameter_name
 from galvo_sysid.monitor.parameters import DRIVER_PARAMETERS, MAX_EFFECTS_TEXT
+from galvo_sysid.nodes.command_line import print_help
 from galvo_sysid.nodes.framework import (
     ParameterSet,
     logger,
@@ -83,14 +84,17 @@ def simulator_config(values: dict[str, Any]) -> SimulatorConfig:
     """The simulator of the driver's parameters: the model file, record and dwell lengths.
 
     Raises:
-        ConfigurationError: Bad model file or lengths (a model without a stable controller
-            design included).
+        ConfigurationError: Bad model file, lengths or dither modes (a model without a stable
+            controller design included).
         InvalidDataError: The model file cannot be read.
     """
+    from galvo_sysid.sim.dither import dither_for_modes
+
     model = load_model(values['model'] or None)
     record = values['record_length'] or None
     dwell = None if values['dwell_length'] < 0 else values['dwell_length']
-    return SimulatorConfig(plant=model, record_length=record, dwell_length=dwell)
+    dither = dither_for_modes(values['dither.amplitude'], values['dither.modes'], model=model)
+    return SimulatorConfig(plant=model, record_length=record, dwell_length=dwell, dither=dither)
 
 
 class PlantChanges:
@@ -289,7 +293,10 @@ class DriverNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of ``galvo_driver``."""
-    return run_node(DriverNode, args=sys.argv if args is None else args)
+    argv = sys.argv if args is None else args
+    if print_help('galvo_driver', argv):  # before rclpy starts
+        return 0
+    return run_node(DriverNode, args=argv)
 
 
 if __name__ == '__main__':

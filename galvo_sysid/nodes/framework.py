@@ -61,6 +61,7 @@ __all__ = [
     'logger',
     'moves_qos',
     'publish_diagnostic',
+    'publish_while_up',
     'results_qos',
     'run_node',
     'scanner_name',
@@ -123,6 +124,20 @@ def publish_diagnostic(node: Node, publisher: Publisher, *, name: str, hardware_
     array.header.stamp = node.get_clock().now().to_msg()
     array.status = [status]
     publisher.publish(array)
+
+
+def publish_while_up(node: Node, publisher: Publisher, msg: Any) -> bool:
+    """Publish ``msg`` unless ROS has shut down (Ctrl-C: the context is gone while a worker
+    thread still hands on a result); return whether it was published."""  # noqa: D205, D209
+    if not node.context.ok():
+        return False
+    try:
+        publisher.publish(msg)
+    except _rclpy.RCLError:
+        if node.context.ok():
+            raise
+        return False  # shut down between the check and the publish
+    return True
 
 
 def logger(node: Node) -> RcutilsLogger:
@@ -418,6 +433,8 @@ def run_node(factory: Callable[[], Node], *, args: Sequence[str] | None = None,
         text = one_line(err)
         if isinstance(err, _rclpy.UnknownROSArgsError):
             text = f'unknown ROS arguments {text}'
+            if "'--help'" in text or "'-h'" in text:
+                text += ' (the usage: --help before --ros-args)'
         text = re.sub(r', at /\S+:\d+', '', text).removeprefix('failed to initialize rcl: ')
         print(f'error: {text}', file=sys.stderr)
         return 2

@@ -47,12 +47,14 @@ from galvo_sysid.monitor.parameters import SYSID_PARAMETERS, WINDOWER_PARAMETERS
 from galvo_sysid.monitor.scheduler import FitOutcome, fit_window
 from galvo_sysid.monitor.tasks import SysidTask
 from galvo_sysid.monitor.verdict import STATUS_MISMATCH
+from galvo_sysid.nodes.command_line import print_help
 from galvo_sysid.nodes.framework import (
     ParameterSet,
     diagnostics_qos,
     logger,
     moves_qos,
     publish_diagnostic,
+    publish_while_up,
     results_qos,
     run_node,
     scanner_name,
@@ -159,12 +161,13 @@ class SysidNode(Node):
                     n_modes=self.model.n_modes, status=STATUS_MISMATCH,
                     status_message=self.task.mismatch_text(outcome.error or ''), model=model))
                 fill_header(msg, stamp=w.last_stamp)
-                self.results.publish(msg)
+                publish_while_up(self, self.results, msg)
             return
         msg = fill(ModalParameters(), modal_parameters_fields(outcome.result,
                                                               window_index=w.index, model=model))
         fill_header(msg, stamp=w.last_stamp)
-        self.results.publish(msg)
+        if not publish_while_up(self, self.results, msg):  # a fit finished while stopping
+            return
         r = outcome.result
         self.log.info(
             f'window {w.index}: {w.target_angle:+g} deg, {w.moves} moves, fit '
@@ -203,7 +206,10 @@ class SysidNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of ``sysid``."""
-    return run_node(SysidNode, args=sys.argv if args is None else args)
+    argv = sys.argv if args is None else args
+    if print_help('sysid', argv):  # before rclpy starts
+        return 0
+    return run_node(SysidNode, args=argv)
 
 
 if __name__ == '__main__':

@@ -47,6 +47,7 @@ from galvo_sysid.monitor.parameters import DECLARED_MODES, WATCHDOG_PARAMETERS, 
 from galvo_sysid.monitor.reference import monitor_from_parameters
 from galvo_sysid.monitor.tasks import WatchdogTask
 from galvo_sysid.monitor.verdict import OK, STALE, DriftVerdict
+from galvo_sysid.nodes.command_line import print_help
 from galvo_sysid.nodes.framework import (
     ParameterSet,
     diagnostics_qos,
@@ -155,7 +156,10 @@ class WatchdogNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Entry point of ``watchdog``."""
-    return run_node(WatchdogNode, args=sys.argv if args is None else args)
+    argv = sys.argv if args is None else args
+    if print_help('watchdog', argv):  # before rclpy starts
+        return 0
+    return run_node(WatchdogNode, args=argv)
 
 
 if __name__ == '__main__':

@@ -9,7 +9,7 @@ ring the modes at its edges. A real servo driver takes the same parameters; the 
 applies them here.
 
 The cost is motion: the mirror follows the tones (about ``amplitude x |P(j omega)|``) and
-the controller's reaction. :func:`galvo_sysid.ident.plan` tells what a dither buys and costs.
+the controller's reaction. :func:`galvo_sysid.field.plan.plan` tells what a dither buys and costs.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 
     from galvo_sysid.model.plant import PlantModel
 
-__all__ = ['MAX_DITHER', 'DitherConfig', 'dither_signal']
+__all__ = ['MAX_DITHER', 'DitherConfig', 'dither_for_modes', 'dither_signal']
 
 MAX_DITHER = 0.5
 """Largest tone amplitude accepted [A] (a dither is a small signal, not a move)."""
@@ -65,6 +65,33 @@ class DitherConfig:
     def active(self) -> bool:
         """Whether any dither is added."""
         return self.amplitude > 0
+
+
+def dither_for_modes(amplitude: float, modes: str, *, model: PlantModel) -> DitherConfig:
+    """The dither of ``amplitude`` [A] at some of the model's resonances.
+
+    Args:
+        amplitude: Amplitude of each tone [A] (0: none).
+        modes: ``'all'`` (every resonance of the model) or the 1-based modes, comma-separated
+            (e.g. ``'3'`` or ``'1,3'``).
+        model: The scanner's plant model (its natural frequencies).
+
+    Raises:
+        ConfigurationError: A bad amplitude, or modes the model does not have.
+    """
+    text = modes.strip()
+    if text in ('', 'all'):
+        return DitherConfig(amplitude=amplitude)
+    n = model.n_modes
+    chosen: list[int] = []
+    for item in text.split(','):
+        item = item.strip()
+        if not item.isdigit() or not 1 <= int(item) <= n or int(item) in chosen:
+            raise ConfigurationError(f"dither modes must be 'all' or distinct mode numbers "
+                                     f'1..{n} separated by commas, got {modes!r}')
+        chosen.append(int(item))
+    freqs = tuple(float(model.modal.natural_frequencies[i - 1]) for i in chosen)
+    return DitherConfig(amplitude=amplitude, frequencies=freqs)
 
 
 def dither_signal(config: DitherConfig, *, model: PlantModel, record: int,

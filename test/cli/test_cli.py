@@ -15,7 +15,7 @@ from galvo_sysid.interfaces.topics import MOVE_SAMPLES
 from galvo_sysid.model import REFERENCE_MODEL
 from galvo_sysid.sim.simulator import GalvoSimulator
 
-SUBCOMMANDS = ('simulate', 'identify', 'info', 'record', 'replay', 'echo')
+SUBCOMMANDS = ('simulate', 'identify', 'info', 'record', 'replay', 'echo', 'topic', 'param')
 WINDOW_FIELDS = {'target_angle', 'moves', 'input_delay', 'k0', 'residues',
                  'natural_frequencies', 'damping_ratios', 'k0_std', 'residues_std',
                  'natural_frequencies_std', 'damping_ratios_std', 'fit_percent', 'drift',

@@ -121,6 +121,19 @@ def test_simulate_absurd_effect_parameter(tmp_path: Path) -> None:
     assert not (tmp_path / 's2').exists()
 
 
+def test_a_refused_simulate_leaves_no_bag_and_the_rerun_works(tmp_path: Path) -> None:
+    """Defect 17 (repro 08): `simulate --angles 1e6` failed with the bag directory already
+    made, and the re-run with a good angle was then refused because that empty bag existed."""
+    out = tmp_path / 'd'
+    proc = run('simulate', '--out', out, '--angles', '1e6', '--moves-per-angle', '4')
+    assert_error_line(proc, 'simulate', '1000000.0 deg')
+    assert list(tmp_path.iterdir()) == []
+    proc = run('simulate', '--out', out, '--angles', '1', '--moves-per-angle', '4')
+    assert proc.returncode == 0, proc.stderr
+    assert sorted(p.name for p in out.iterdir()) == ['d.mcap', 'metadata.yaml']
+    assert [p.name for p in tmp_path.iterdir()] == ['d']
+
+
 def test_simulate_limits_are_the_drivers() -> None:
     """The parser writes the driver's ranges out (to stay light): the same."""
     from galvo_sysid.cli.simulate import LIMITS

@@ -286,3 +286,21 @@ def test_bag_without_stored_definitions_uses_ours(tmp_path: Path) -> None:
         halves = [h for h in reader.move_halves() if isinstance(h, MoveHalf)]
     assert len(halves) == 4
     np.testing.assert_array_equal(halves[0].data, records[0][3])
+
+
+def test_offered_qos_is_stored_as_given(tmp_path: Path) -> None:
+    from rosbags.interfaces import QosDurability, QosHistory, QosReliability
+    from rosbags.rosbag2 import Reader
+
+    with BagWriter(tmp_path / 'b') as bag:
+        bag.add_topic('/last', 'std_msgs/msg/String', depth=1000)
+        bag.add_topic('/all', 'std_msgs/msg/String', depth=0, reliable=False)
+        bag.add_topic('/discovered', 'std_msgs/msg/String', depth=None, transient_local=True)
+    with Reader(tmp_path / 'b') as reader:
+        qos = {c.topic: c.ext.offered_qos_profiles[0] for c in reader.connections}
+        assert reader.ros_distro == 'jazzy'
+    assert (qos['/last'].history, qos['/last'].depth) == (QosHistory.KEEP_LAST, 1000)
+    assert (qos['/all'].history, qos['/all'].depth) == (QosHistory.KEEP_ALL, 0)
+    assert qos['/all'].reliability == QosReliability.BEST_EFFORT
+    assert (qos['/discovered'].history, qos['/discovered'].depth) == (QosHistory.UNKNOWN, 0)
+    assert qos['/discovered'].durability == QosDurability.TRANSIENT_LOCAL

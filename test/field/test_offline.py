@@ -363,6 +363,36 @@ def test_a_glitched_move_is_set_aside_and_its_window_kept(bag: Path, tmp_path: P
     assert {r['move_id'] for r in screened} == set(victim.values())
 
 
+def test_absurdly_scaled_moves_cost_no_window(bag: Path, tmp_path: Path) -> None:
+    # issue 12, defect 6 (its third case): moves whose records are finite but scaled by 1e300
+    # (repro live.py 'garbage', kind 7) entered their windows and cost the good moves' windows.
+    # Five such moves in each window of 100: each window is identified from its 95 other
+    # moves exactly as if the five had never come, judged OK; the five are listed as set aside
+    # by the screening.
+    from dataclasses import replace
+
+    halves = _halves(bag)
+    absurd = {h.move_id for h in halves if h.move_id % 40 in (7, 12)}  # 5 per window
+
+    def scale(h: Any) -> np.ndarray:
+        data = np.array(h.data, dtype=float)
+        return data * 1e300 if h.move_id in absurd else data
+
+    found = identify_bag(_altered(bag, tmp_path / 'absurd', scale))
+    without = identify_bag(_written(tmp_path / 'without',
+                                    [h for h in halves if h.move_id not in absurd]))
+    assert len(without.windows) == 4
+    assert [w.result.moves for w in found.windows] == [95] * 4
+    for w, alone in zip(found.windows, without.windows, strict=True):
+        assert len(w.result.set_aside) == 5
+        assert replace(w.result, set_aside=()) == alone.result  # bit for bit
+    assert all(w.drift.level_name == 'OK' for w in found.windows), \
+        [w.drift.message for w in found.windows]
+    screened = [r for r in found.rejected if 'screening' in r['reason']]
+    assert {r['move_id'] for r in screened} == absurd
+    assert found.pooled is not None
+
+
 def test_a_window_far_worse_than_the_others_is_left_out_of_the_pool(bag: Path,
                                                                    tmp_path: Path) -> None:
     # issue 12, defect 7: the pooled estimate took in a garbage window (4.2 % fit) without a

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
@@ -67,3 +68,36 @@ def test_effect_and_step_reach_the_plant(tmp_path: Path) -> None:
     deviation = [w.drift.relative_deviation[j] for w in windows]
     assert deviation[0] == pytest.approx(0.0, abs=0.003)
     assert deviation[-1] == pytest.approx(-0.02, abs=0.003)
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_bag_says_jazzy_and_the_qos_the_driver_offers(tmp_path: Path, storage: str) -> None:
+    from rosbags.interfaces import QosDurability, QosHistory, QosReliability
+    from rosbags.rosbag2 import Reader
+
+    from galvo_sysid.monitor.parameters import defaults
+
+    bag = simulate_bag(tmp_path / 'b', angles=[0.6], moves_per_angle=2, seed=1,
+                       storage=storage).path
+    driver = defaults('galvo_driver')
+    assert driver['qos_depth'] == 1000
+    with Reader(bag) as reader:
+        assert reader.ros_distro == 'jazzy'
+        assert len(reader.connections) == 2
+        for c in reader.connections:
+            (qos,) = c.ext.offered_qos_profiles
+            assert qos.history == QosHistory.KEEP_LAST
+            assert qos.depth == driver['qos_depth']
+            assert qos.reliability == QosReliability.RELIABLE
+            assert qos.durability == QosDurability.VOLATILE
+    (file,) = [p for p in bag.iterdir() if p.suffix in {'.mcap', '.db3'}]
+    if storage == 'mcap':  # the storage's own copy of the metadata
+        assert b'ros_distro: jazzy' in file.read_bytes()
+    else:
+        import sqlite3
+
+        with contextlib.closing(sqlite3.connect(file)) as db:
+            assert db.execute('SELECT ros_distro FROM schema').fetchall() == [('jazzy',)]
+            (text,), = db.execute('SELECT metadata FROM metadata').fetchall()
+        assert 'ros_distro: jazzy' in text
+        assert 'depth: 1000' in text

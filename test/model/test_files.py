@@ -141,6 +141,30 @@ def test_bad_models_are_refused_with_a_clear_message(mutate, message):
     assert '\n' not in str(info.value)
 
 
+def test_a_typo_or_a_text_in_a_model_file_is_refused(tmp_path):
+    """Defect 14 (repro 10): a misspelt key inside ``input_dynamics`` (lag_typo.yaml) was
+    ignored, the model loaded without the lag it asked for; a residue written as text was
+    read as a number."""
+    head = ('format: galvo_sysid/plant_model\nversion: 1\nmechanics: {k0: 3.564e6, modes: '
+            '[{natural_frequency: 71080.0, damping_ratio: 0.006218, residue: %s}]}\n')
+    typo = tmp_path / 'lag_typo.yaml'
+    typo.write_text(head % '2069000.0' +
+                    'input_dynamics: {computation_delay: 1, lag_time_constnt: 3.0e-5}\n')
+    with pytest.raises(ConfigurationError, match=r"unknown key\(s\) \['lag_time_constnt'\]") \
+            as info:
+        load_model(typo)
+    assert str(info.value).startswith(f'{typo}: input_dynamics: ')
+    text = tmp_path / 'text.yaml'
+    text.write_text(head % "'123'")
+    with pytest.raises(ConfigurationError,
+                       match=r"modes\[1\]: residue must be a number, got '123'"):
+        load_model(text)
+    good = tmp_path / 'good.yaml'  # the same file spelt right loads, with its lag
+    good.write_text(head % '2069000.0' +
+                    'input_dynamics: {computation_delay: 1, lag_time_constant: 3.0e-5}\n')
+    assert load_model(good).dynamics.lag_time_constant == 3.0e-5
+
+
 def test_file_errors(tmp_path):
     with pytest.raises(InvalidDataError, match='cannot read'):
         load_model(tmp_path / 'missing.yaml')

@@ -346,7 +346,17 @@ def test_a_result_that_did_not_match_the_model_is_a_mismatch_never_drift() -> No
     assert back['level'] == 'MISMATCH'
 
 
-# -- what the mutation run of tools/mutate.py found untested (docs/mutation.md) -------------
+def test_a_tolerance_tighter_than_the_data_resolve_is_said() -> None:
+    # zeta_2 identified with a 10 % std against a 20 % tolerance: 3 std = 30 % > 20 %
+    v = DriftMonitor().assess(result(rel_std={'zeta_2': 0.1}), window_index=0)
+    assert v.level == OK
+    assert v.unresolvable == ('zeta_2',)
+    assert 'tolerance tighter than the data resolve (zeta_2: 3 std = 30 % > 20 %)' in v.message
+    assert json.loads(json.dumps(v.to_dict()))['tolerance_unresolvable'] == ['zeta_2']
+    assert DriftMonitor().assess(result(), window_index=0).unresolvable == ()
+
+
+# -- what the mutation run of tools/mutate.py found untested -------------
 
 CHECKED_OPTIONS = ('warn_fraction', 'n_sigma', 'trend_sigma', 'trend_fraction',
                    'step_fraction', 'min_fit_percent')

@@ -9,6 +9,9 @@
 - Defect 9: 40 moves of distinct target angles after each good move (80 between two moves
   of one sign, more than ``max_windows``) no longer starve the good windows: each sign
   loses its first move only, the flood's windows are evicted and counted.
+- "Also" (a second sample period): moves of another scanner (13.3 us) interleaved with the
+  scanner's own (10 us) on the same topics and angle are set aside with the reason, never
+  published as windows of that angle.
 
 - Defect 3 below the node: ten pairs of 36 MB records, refused before decoding, leave no
   memory behind in the DDS receive buffers (the reader history's DYNAMIC memory of
@@ -157,6 +160,49 @@ def test_a_flood_of_distinct_angles_leaves_filling_windows_complete(graph: Graph
     assert c['windows_evicted'] >= len(moves) * per_move - 64
     log = sysid.text()
     assert 'window evicted: more than 64 open windows' in log
+    assert sysid.running
+    assert 'Traceback' not in log
+
+
+def test_moves_of_a_second_sample_period_are_set_aside_not_published(graph: Graph) -> None:
+    """Issue 12, "also": windows of moves of a second sample period (another scanner on the
+    same topics: 13.3 us instead of the model's 10 us) were identified and published with
+    the same target angle as the scanner's own, so nothing told them apart. Each such move
+    is set aside now, with the reason; only the scanner's own windows are published."""
+    from galvo_sysid.sim.family import random_scanner
+
+    ns = '/input_periods'
+    results, pubs, sysid = _setup(graph, ns)
+    moves = list(GalvoSimulator(seed=24).moves(angles=[0.9], moves_per_angle=20))
+    other = list(GalvoSimulator(config=random_scanner(35).config, seed=24).moves(
+        angles=[0.9], moves_per_angle=20))
+    t0 = 500.0
+    for move, alien in zip(moves, other, strict=True):
+        _pair(pubs, move, t0)
+        for s in ('current', 'encoder'):  # stamped a little later, ids of its own
+            pubs[s].publish(move_message(alien, s, stamp=t0 + move.stamp + 1e-4,
+                                         move_id=10**6 + alien.move_id))
+        graph.spin_for(0.002)
+    total = 4 * len(moves)
+
+    def handled() -> bool:  # every half counted, every completed window fitted or dropped
+        c = counters(sysid.text())
+        done = sum(c[-1].get(k, 0) for k in ('windows_identified', 'windows_failed',
+                                             'windows_mismatched', 'windows_dropped'))
+        return _settled(sysid, total) and done == c[-1]['windows_completed'] >= 2
+
+    graph.spin_until(handled, 60, 'every half counted and every window fitted')
+    graph.spin_until(lambda: len(results) >= 2, 10, 'the two windows published')
+    graph.spin_for(0.5)
+    assert sorted(m.target_angle for m in results) == [-0.9, 0.9]
+    assert all(m.moves == 10 and _plausible(m) for m in results)
+    c = counters(sysid.text())[-1]
+    assert c['halves_received'] == total
+    assert c['moves_accepted'] == len(moves)
+    assert c['moves_rejected'] == len(moves)
+    assert c['halves_period_mismatched'] == 2 * len(moves)
+    log = sysid.text()
+    assert "the data's sample period 1.33e-05 s differs from the model's 1e-05 s" in log
     assert sysid.running
     assert 'Traceback' not in log
 

@@ -10,8 +10,10 @@ is a plain name in the bag's directory. The message counts it claims are not sho
 says where ``metadata.yaml`` disagrees.
 
 Written: :func:`bag_metadata` builds its content from what a storage has durably written (used
-while recording, :mod:`galvo_sysid.field.bags.writer`, and by the recovery,
-:mod:`galvo_sysid.field.bags.recovery`); :func:`metadata_text` is its text.
+while recording and when a bag is closed, :mod:`galvo_sysid.field.bags.writer`, and by the
+recovery, :mod:`galvo_sysid.field.bags.recovery`); :func:`metadata_text` is its text. It names
+ROS 2 Jazzy as the bag's ``ros_distro`` (:data:`ROS_DISTRO`) and each topic's offered QoS as the
+writer was given it.
 """
 
 from __future__ import annotations
@@ -33,8 +35,12 @@ if TYPE_CHECKING:
 
     from rosbags.interfaces import Qos
 
-__all__ = ['MAX_FILES', 'MAX_TOPICS', 'BagMetadata', 'ClaimedTopic', 'StoredTopic',
+__all__ = ['MAX_FILES', 'MAX_TOPICS', 'ROS_DISTRO', 'BagMetadata', 'ClaimedTopic', 'StoredTopic',
            'bag_metadata', 'check_storage_files', 'metadata_text', 'read_metadata']
+
+ROS_DISTRO = 'jazzy'
+"""The ``ros_distro`` the bags written here name: their message definitions are ROS 2 Jazzy's
+(:func:`~galvo_sysid.field.bags.definitions.galvo_typestore`), as ``ros2 bag`` on Jazzy writes."""
 
 MAX_TOPICS = 10_000
 """Most topics a ``metadata.yaml`` may list."""
@@ -273,7 +279,7 @@ def bag_metadata(*, storage: str, file_name: str, topics: Sequence[StoredTopic],
         'files': [{'path': file_name, 'starting_time': {'nanoseconds_since_epoch': start},
                    'duration': {'nanoseconds': duration}, 'message_count': count}],
         'custom_data': dict(custom) if custom else None,
-        'ros_distro': 'rosbags',
+        'ros_distro': ROS_DISTRO,
     }
 
 

@@ -22,6 +22,8 @@ from typing import TYPE_CHECKING, Any
 
 from rosbags.rosbag2.storage_sqlite3 import Sqlite3Writer
 
+from galvo_sysid.field.bags.metadata import ROS_DISTRO
+
 if TYPE_CHECKING:
     from pathlib import Path
 
@@ -47,6 +49,10 @@ class Sqlite3Storage(Sqlite3Writer):
     ``flush_interval`` (seconds, None: commit at close only, as rosbags does) is set by the
     owner after the writer opened the storage.
     """
+
+    SQLITE_SCHEMA = Sqlite3Writer.SQLITE_SCHEMA.replace(
+        "ros_distro) VALUES (4, 'rosbags')", f"ros_distro) VALUES (4, '{ROS_DISTRO}')")
+    """rosbags' schema with the bag's ``ros_distro`` (the ``schema`` table ``ros2 bag`` writes)."""
 
     def __init__(self, path: Path, compression: CompressionMode) -> None:
         try:

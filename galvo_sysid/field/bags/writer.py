@@ -67,9 +67,15 @@ RESERVE_BYTES = 256 * 1024
 _INFINITE = QosTime(2147483647, 4294967295)
 
 
-def _qos(*, reliable: bool, transient_local: bool, depth: int) -> Qos:
+def _qos(*, reliable: bool, transient_local: bool, depth: int | None) -> Qos:
+    """The offered QoS as rosbag2 stores it (``depth`` 0: keep all; None: history unknown,
+    as a publisher discovered on the graph reports it)."""  # noqa: D205, D209
+    if depth is None:
+        history, depth = QosHistory.UNKNOWN, 0
+    else:
+        history = QosHistory.KEEP_ALL if depth == 0 else QosHistory.KEEP_LAST
     return Qos(
-        history=QosHistory.KEEP_LAST,
+        history=history,
         depth=depth,
         reliability=QosReliability.RELIABLE if reliable else QosReliability.BEST_EFFORT,
         durability=QosDurability.TRANSIENT_LOCAL if transient_local else QosDurability.VOLATILE,
@@ -97,14 +103,27 @@ class _Writer(Writer):
         return storage
 
     def close(self) -> None:
-        """Close the storage and write ``metadata.yaml`` with what the storage holds."""
+        """Close the storage and write ``metadata.yaml`` with what the storage holds.
+
+        The metadata (in the storage and in ``metadata.yaml``) is :func:`bag_metadata`'s, as
+        the interim one and the recovery write it: ``ros_distro`` Jazzy, each topic's offered
+        QoS as given to :meth:`BagWriter.add_topic`.
+        """
         storage = self.durable
         storage.flush()
         # what reached the file (equal to what was written, unless a write failed)
-        self.counts = {c.id: storage.durable_counts.get(c.id, 0) for c in self.connections}
-        span = storage.durable_span
-        self.min_timestamp, self.max_timestamp = span or (2**63 - 1, 0)
-        super().close()
+        counts = storage.durable_counts
+        topics = [StoredTopic(c.topic, c.msgtype, counts.get(c.id, 0),
+                              list(getattr(c.ext, 'offered_qos_profiles', [])), c.digest)
+                  for c in self.connections]
+        info = bag_metadata(storage='mcap' if isinstance(storage, McapStorage) else 'sqlite3',
+                            file_name=storage.path.name, topics=topics,
+                            span=storage.durable_span)
+        storage.close(self.version, metadata_text(info, inner=True).strip())
+        self.storage = None
+        tmp = self.metapath.with_suffix('.yaml.tmp')
+        tmp.write_text(metadata_text(info), 'utf8')
+        tmp.replace(self.metapath)
 
 
 class RecordingLock:
@@ -294,7 +313,7 @@ class BagWriter(BagFile):
         return dict(self._types)
 
     def add_topic(self, topic: str, msgtype: str, *, reliable: bool = True,
-                  transient_local: bool = False, depth: int = 10) -> None:
+                  transient_local: bool = False, depth: int | None = 10) -> None:
         """Add a topic; its type's definition is stored in the bag.
 
         Args:
@@ -303,7 +322,8 @@ class BagWriter(BagFile):
                 type, or have its ``.msg`` installed under ``<prefix>/share``.
             reliable: The offered QoS was reliable (stored in the metadata for players).
             transient_local: The offered QoS was transient local.
-            depth: The offered history depth.
+            depth: The offered history depth (0: keep all; None: not known, as for a
+                publisher discovered on a live graph: stored as history ``unknown``).
 
         Raises:
             BagError: Topic added twice, or the type's definition is not found.

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import signal
+import time
 from typing import TYPE_CHECKING, Any, TextIO
 
 from galvo_sysid.errors import ConfigurationError
@@ -23,10 +24,12 @@ __all__ = [
     'Stop',
     'absolute',
     'message_class',
+    'node_names',
     'publisher_qos',
     'ros_node',
     'say',
     'subscription_qos',
+    'wait_for_publisher',
 ]
 
 
@@ -50,10 +53,14 @@ def message_class(msgtype: str) -> Any:
         raise ConfigurationError(msg) from None
 
 
-
 def absolute(topic: str) -> str:
-    """A topic name taken from ``/`` (``'galvo/drift'`` -> ``'/galvo/drift'``)."""
+    """A topic (or node) name taken from ``/`` (``'galvo/drift'`` -> ``'/galvo/drift'``)."""
     return topic if topic.startswith('/') else '/' + topic
+
+
+def node_names(node: Node) -> set[str]:
+    """The full names of the nodes on the graph (``/scanner_1/sysid``), as discovered so far."""
+    return {f'{ns.rstrip("/")}/{name}' for name, ns in node.get_node_names_and_namespaces()}
 
 
 class Stop:
@@ -82,14 +89,17 @@ class Stop:
 
 @contextlib.contextmanager
 def ros_node(name: str) -> Iterator[Node]:
-    """A node of a freshly initialised rclpy, shut down at the end; no rclpy signal handlers."""
+    """A node of a freshly initialised rclpy, shut down at the end; no rclpy signal handlers,
+    no ROS arguments from the command line."""  # noqa: D205, D209
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
     from galvo_sysid import bounded_dds_memory
 
     bounded_dds_memory()  # before the participant exists: record takes whatever is sent
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    # no command-line arguments for rcl: it would take the tool's own (replay --remap
+    # OLD:=NEW) for ROS remapping rules of this node
+    rclpy.init(args=[name], signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
         node = rclpy.create_node(name, start_parameter_services=False)
@@ -134,3 +144,43 @@ def say(stream: TextIO, text: str) -> None:
     """Write one progress line and flush it (the tools run for long)."""
     stream.write(text + '\n')
     stream.flush()
+
+
+def wait_for_publisher(node: Node, name: str, *, tool: str, stop: Stop, start: float,
+                       timeout: float | None, log: TextIO) -> tuple[str, bool, bool] | None:
+    """Wait until a live topic has a publisher: its type and the QoS that matches it.
+
+    A topic known only from subscribers does not count (its QoS comes from publishers).
+    Says once what it waits for (``<tool>: waiting for a publisher on /x...``).
+
+    Args:
+        node: Our node.
+        name: The absolute topic name.
+        tool: The tool's name, first word of the lines said.
+        stop: Ends the wait early.
+        start: When the tool started (``time.monotonic()``): ``timeout`` counts from there.
+        timeout: Give up after this many seconds (None: wait until stopped).
+        log: Where the lines go.
+
+    Returns:
+        ``(type, reliable, transient_local)``, or None when stopped or timed out (then said:
+        ``<tool>: topic /x did not appear within S s``).
+    """
+    said: set[str] = set()  # the waiting lines said (each once)
+    while not stop.is_set():
+        types = dict(node.get_topic_names_and_types()).get(name)
+        offered = publisher_qos(node, name) if types else None
+        if types and offered is not None:  # a publisher, not only other subscribers
+            return types[0], offered[0], offered[1]
+        elapsed = time.monotonic() - start
+        if timeout is not None and elapsed > timeout:
+            say(log, f'{tool}: topic {name} did not appear within {timeout:g} s')
+            return None
+        if types and 'subscribers' not in said:
+            say(log, f'{tool}: waiting for a publisher on {name} (it has subscribers only)...')
+            said.add('subscribers')
+        elif not said and elapsed > 1.0:
+            say(log, f'{tool}: waiting for a publisher on {name}...')
+            said.add('publisher')
+        time.sleep(0.1)
+    return None

@@ -1,4 +1,10 @@
-"""``replay``: a bag's messages published with their recorded timing, optionally ``/clock``."""
+"""``replay``: a bag's move messages published with their recorded timing, optionally ``/clock``.
+
+By default only the moves (:data:`~galvo_sysid.interfaces.topics.MOVE_TOPICS`, in any
+namespace: ``/galvo/current``, ``/galvo/encoder``) are published: a bag's recorded results
+(``/galvo/modal_parameters``, ``/galvo/drift``) are stale, and the nodes compute them afresh
+from the moves. ``topics`` or ``all_topics`` choose others; ``remap`` renames them.
+"""
 
 from __future__ import annotations
 
@@ -10,19 +16,69 @@ from typing import TYPE_CHECKING, Any, TextIO
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.field.bags import BagError, BagReader
 from galvo_sysid.field.live.graph import Stop, absolute, message_class, ros_node, say
+from galvo_sysid.interfaces.topics import MOVE_TOPICS, galvo_topic
 
 if TYPE_CHECKING:
     import os
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
 
-__all__ = ['replay']
+__all__ = ['MAX_WAIT', 'replay']
+
+MAX_WAIT = 3600.0
+"""Longest wait for subscribers [s] (the wait is always bounded)."""
+
+_MOVES = {t.lstrip('/') for t in MOVE_TOPICS}
+
+
+def _chosen(bag: object, held: Sequence[str], topics: Sequence[str] | None,
+            all_topics: bool) -> list[str]:
+    """The bag's topics to publish: the moves, ``topics`` (each must be in the bag) or all."""
+    if all_topics:
+        return list(held)
+    if topics is None:
+        chosen = [t for t in held if galvo_topic(t) in _MOVES]
+        if not chosen:
+            msg = (f'bag {bag} holds no move topic ({", ".join(MOVE_TOPICS)}, in any '
+                   f'namespace); it holds {", ".join(held) or "no topic"}: choose with '
+                   '--topics or --all-topics')
+            raise BagError(msg)
+        return chosen
+    names = list(dict.fromkeys(absolute(t) for t in topics))
+    missing = [t for t in names if t not in held]
+    if missing:
+        msg = (f'bag {bag} holds no topic {", ".join(missing)}; it holds '
+               f'{", ".join(held) or "no topic"}')
+        raise BagError(msg)
+    return names
+
+
+def _renamed(chosen: Sequence[str], remap: Mapping[str, str] | None) -> dict[str, str]:
+    """The name each chosen topic is published under (``remap``: old name -> new name)."""
+    rules = {absolute(old): absolute(new) for old, new in (remap or {}).items()}
+    unknown = [old for old in rules if old not in chosen]
+    if unknown:
+        msg = (f'remap {", ".join(unknown)}: not a topic the replay publishes (it publishes '
+               f'{", ".join(chosen)})')
+        raise ConfigurationError(msg)
+    names = {t: rules.get(t, t) for t in chosen}
+    for name in names.values():
+        same = [t for t, n in names.items() if n == name]
+        if len(same) > 1:
+            msg = f'remap gives {" and ".join(same)} one name, {name}'
+            raise ConfigurationError(msg)
+    return names
 
 
 def replay(bag: str | os.PathLike[str], *, rate: float = 1.0, loop: bool = False,
            clock: bool = False, clock_frequency: float = 100.0,
-           topics: Sequence[str] | None = None, wait: float = 10.0,
+           topics: Sequence[str] | None = None, all_topics: bool = False,
+           remap: Mapping[str, str] | None = None, wait: float = 10.0,
            log: TextIO = sys.stderr) -> int:
     """Publish a bag's messages with their recorded timing; return the number published.
+
+    Publishers are made for the published topics only, and the replay waits (at most
+    ``wait`` seconds) until each has a subscriber, then publishes anyway (saying which had
+    none); ``/clock`` is not waited for.
 
     Args:
         bag: The bag.
@@ -31,24 +87,36 @@ def replay(bag: str | os.PathLike[str], *, rate: float = 1.0, loop: bool = False
         clock: Publish ``/clock`` (``rosgraph_msgs/Clock``) with the bag's log time, before
             each message and at ``clock_frequency`` Hz while waiting.
         clock_frequency: Rate of ``/clock`` between messages [Hz].
-        topics: Only these topics (default: all in the bag).
-        wait: Wait at most this long [s] for every topic to have a subscriber.
+        topics: Publish these topics of the bag (each must be in it) instead of the moves
+            (:data:`~galvo_sysid.interfaces.topics.MOVE_TOPICS`, in any namespace).
+        all_topics: Publish every topic of the bag.
+        remap: Publish topic ``old`` as ``new`` (``{old: new}``, like ``--remap old:=new``).
+        wait: Wait at most this long [s] for each published topic to have a subscriber
+            (0: not at all; at most :data:`MAX_WAIT`).
         log: Where progress lines go.
 
     Raises:
-        BagError: The bag cannot be read.
-        ConfigurationError: A type is not installed, or a bad rate.
+        BagError: The bag cannot be read, or holds none of the topics to publish.
+        ConfigurationError: A type is not installed, a bad rate or wait, or a remap of a
+            topic not published.
     """
     if not rate > 0:
         msg = f'rate must be positive, got {rate}'
         raise ConfigurationError(msg)
+    if not 0 <= wait <= MAX_WAIT:
+        msg = f'wait must be within 0..{MAX_WAIT:g} s, got {wait}'
+        raise ConfigurationError(msg)
     with BagReader(bag) as reader:
         info = reader.info
-        wanted = [t for t in info.topics if topics is None or t.topic in
-                  {absolute(x) for x in topics}]
-        if not wanted:
-            msg = f'bag {bag} holds none of the topics {list(topics or [])}'
-            raise BagError(msg)
+        held = [t.topic for t in info.topics]
+        chosen = _chosen(bag, held, topics, all_topics)
+        names = _renamed(chosen, remap)
+        wanted = [t for t in info.topics if t.topic in chosen]
+        left_out = [t for t in held if t not in chosen]
+        say(log, 'replay: publishing ' + ', '.join(
+            t if names[t] == t else f'{t} as {names[t]}' for t in chosen) +
+            (f' (not {", ".join(left_out)}: --topics or --all-topics publish them)'
+             if left_out else ''))
         published = 0
         with Stop() as stop, ros_node('galvo_sysid_player') as node:
             from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -61,8 +129,8 @@ def replay(bag: str | os.PathLike[str], *, rate: float = 1.0, loop: bool = False
                     depth=100, reliability=ReliabilityPolicy.RELIABLE,
                     durability=(DurabilityPolicy.TRANSIENT_LOCAL if t.transient_local
                                 else DurabilityPolicy.VOLATILE))
-                publishers[t.topic] = node.create_publisher(message_class(t.msgtype), t.topic,
-                                                            qos)
+                publishers[t.topic] = node.create_publisher(message_class(t.msgtype),
+                                                            names[t.topic], qos)
             clock_pub: Any = None
             if clock:
                 clock_pub = node.create_publisher(
@@ -109,10 +177,11 @@ def replay(bag: str | os.PathLike[str], *, rate: float = 1.0, loop: bool = False
 
 def _wait_for_subscribers(publishers: dict[str, Any], wait: float, stop: Stop,
                           log: TextIO) -> None:
+    """Wait until each publisher has a subscriber, at most ``wait`` seconds."""
     deadline = time.monotonic() + wait
     said = False
     while not stop.is_set():
-        missing = [t for t, p in publishers.items() if p.get_subscription_count() == 0]
+        missing = [p.topic_name for p in publishers.values() if p.get_subscription_count() == 0]
         if not missing:
             return
         if time.monotonic() >= deadline:

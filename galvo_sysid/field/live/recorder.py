@@ -123,9 +123,9 @@ def record(out: str | os.PathLike[str], *, topics: Sequence[str] = GALVO_TOPICS,
                             waiting.add(topic)
                         continue
                     reliable, transient = offered
-                    try:
+                    try:  # discovery tells no history depth (rclpy: unknown, 0): so stored
                         writer.add_topic(topic, msgtype, reliable=reliable,
-                                         transient_local=transient)
+                                         transient_local=transient, depth=None)
                     except BagWriteError:  # kept in writer.error: stop
                         return
                     _check_hash(node, topic, msgtype, writer, log)

@@ -5,7 +5,9 @@ from __future__ import annotations
 import math
 from typing import Any
 
-__all__ = ['format_yaml', 'message_to_dict']
+from galvo_sysid.errors import ConfigurationError
+
+__all__ = ['field_path', 'format_yaml', 'message_to_dict', 'select_field']
 
 
 def message_to_dict(message: Any) -> Any:
@@ -74,3 +76,55 @@ def _yaml_lines(value: Any, indent: int) -> list[str]:
 def format_yaml(value: Any) -> str:
     """Block-style YAML of plain data, as ``ros2 topic echo`` prints messages."""
     return '\n'.join(_yaml_lines(value, 0))
+
+
+def field_path(text: str) -> list[str]:
+    """The parts of a field path (``'header.stamp.sec'``, ``'natural_frequencies.0'``).
+
+    Raises:
+        ConfigurationError: An empty path or part.
+    """
+    parts = text.split('.')
+    if not text or any(not p for p in parts):
+        msg = f'not a field path: {text!r} (names joined by dots, e.g. header.stamp)'
+        raise ConfigurationError(msg)
+    return parts
+
+
+def select_field(data: Any, path: list[str], *, known_only: bool = False) -> Any:
+    """One field of a message as plain data (:func:`message_to_dict`): ``path`` names a
+    field of each nested message in turn; a whole number picks an element of a list.
+
+    Args:
+        data: The message as plain data.
+        path: The parts of the path (:func:`field_path`).
+        known_only: Check only what ``data`` can tell (a message type's default instance,
+            whose lists are empty): an element beyond a list's end ends the check.
+
+    Raises:
+        ConfigurationError: No such field (the fields there are named), an index into
+            something that is not a list, or (unless ``known_only``) beyond its end.
+    """  # noqa: D205
+    value = data
+    for i, part in enumerate(path):
+        where = '.'.join(path[:i]) or 'the message'
+        if isinstance(value, dict):
+            if part not in value:
+                msg = (f'{where} has no field {part!r} (fields: {", ".join(value) or "none"})')
+                raise ConfigurationError(msg)
+            value = value[part]
+        elif isinstance(value, list):
+            if not part.lstrip('-').isdigit():
+                msg = f'{where} is a list: select an element by its index, not {part!r}'
+                raise ConfigurationError(msg)
+            index = int(part)
+            if not -len(value) <= index < len(value):
+                if known_only:
+                    return None
+                msg = f'{where} has {len(value)} elements, no element {index}'
+                raise ConfigurationError(msg)
+            value = value[index]
+        else:
+            msg = f'{where} is a single value, it has no field {part!r}'
+            raise ConfigurationError(msg)
+    return value

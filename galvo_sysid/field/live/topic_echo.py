@@ -1,4 +1,4 @@
-"""``echo``: a live topic's messages printed as YAML or JSON lines."""
+"""``echo``: a live topic's messages (or one field of each) printed as YAML or JSON lines."""
 
 from __future__ import annotations
 
@@ -7,21 +7,22 @@ import sys
 import time
 from typing import Any, TextIO
 
+from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.field.live.graph import (
     Stop,
     absolute,
     message_class,
-    publisher_qos,
     ros_node,
     say,
     subscription_qos,
+    wait_for_publisher,
 )
-from galvo_sysid.field.live.text import format_yaml, message_to_dict
+from galvo_sysid.field.live.text import field_path, format_yaml, message_to_dict, select_field
 
 __all__ = ['echo']
 
 
-def echo(topic: str, *, once: bool = False, as_json: bool = False,
+def echo(topic: str, *, once: bool = False, as_json: bool = False, field: str | None = None,
          timeout: float | None = None, out: TextIO = sys.stdout,
          log: TextIO = sys.stderr) -> int:
     """Print a live topic's messages (YAML documents, or one JSON object per line).
@@ -33,62 +34,68 @@ def echo(topic: str, *, once: bool = False, as_json: bool = False,
         topic: Topic name (relative names are taken from ``/``).
         once: Exit after the first message.
         as_json: One JSON object per line instead of YAML.
+        field: Print only this field of each message (``ros2 topic echo --field``): names
+            joined by dots (``header.stamp``), a whole number picks a list's element
+            (``natural_frequencies.0``). Checked against the type before subscribing.
         timeout: Give up after this many seconds without any message (exit code 1).
         out: Where messages go.
         log: Where status lines go.
 
     Returns:
-        Process exit code: 0, or 1 on timeout.
+        Process exit code: 0, or 1 on timeout or when a message lacks the list element
+        ``field`` names.
 
     Raises:
-        ConfigurationError: The topic's type is not installed.
+        ConfigurationError: The topic's type is not installed, or it has no field ``field``.
     """
     import rclpy
 
     name = absolute(topic)
+    path = field_path(field) if field is not None else None
     start = time.monotonic()
     count = 0
+    failed: list[str] = []
     with Stop() as stop, ros_node('galvo_sysid_echo') as node:
-        msgtype = None
-        offered = None
-        said: set[str] = set()  # the waiting lines said (each once)
-        while not stop.is_set():
-            types = dict(node.get_topic_names_and_types()).get(name)
-            offered = publisher_qos(node, name) if types else None
-            if types and offered is not None:  # a publisher, not only other subscribers
-                msgtype = types[0]
-                break
-            elapsed = time.monotonic() - start
-            if timeout is not None and elapsed > timeout:
-                say(log, f'echo: topic {name} did not appear within {timeout:g} s')
-                return 1
-            if types and 'subscribers' not in said:
-                say(log, f'echo: waiting for a publisher on {name} (it has subscribers only)...')
-                said.add('subscribers')
-            elif not said and elapsed > 1.0:
-                say(log, f'echo: waiting for a publisher on {name}...')
-                said.add('publisher')
-            time.sleep(0.1)
-        if msgtype is None or offered is None:
-            return 0
-        reliable, transient = offered
+        found = wait_for_publisher(node, name, tool='echo', stop=stop, start=start,
+                                   timeout=timeout, log=log)
+        if found is None:
+            return 0 if stop.is_set() else 1
+        msgtype, reliable, transient = found
+        cls = message_class(msgtype)
+        if path is not None:
+            try:
+                select_field(message_to_dict(cls()), path, known_only=True)
+            except ConfigurationError as err:
+                msg = f'{msgtype}: {err}'
+                raise ConfigurationError(msg) from None
 
         def callback(message: Any) -> None:
             nonlocal count
-            count += 1
+            if failed:
+                return
             data = message_to_dict(message)
+            if path is not None:
+                try:
+                    data = select_field(data, path)
+                except ConfigurationError as err:
+                    failed.append(str(err))
+                    return
+            count += 1
             if as_json:
                 out.write(json.dumps(data) + '\n')
             else:
                 out.write(format_yaml(data) + '\n---\n')
             out.flush()
 
-        node.create_subscription(message_class(msgtype), name, callback,
+        node.create_subscription(cls, name, callback,
                                  subscription_qos(reliable=reliable, transient_local=transient,
                                                    depth=100))
-        while not stop.is_set() and not (once and count):
+        while not stop.is_set() and not (once and count) and not failed:
             rclpy.spin_once(node, timeout_sec=0.1)
             if count == 0 and timeout is not None and time.monotonic() - start > timeout:
                 say(log, f'echo: no message on {name} within {timeout:g} s')
                 return 1
+    if failed:
+        say(log, f'echo: a message on {name} has no {field}: {failed[0]}')
+        return 1
     return 0

@@ -162,20 +162,22 @@ def widen_to_profiles(cov: NDArray[np.float64], profiles: Sequence[ModeProfile],
 
 
 def _omega_profile(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArray[np.float64],
-                   ridge: tuple[float, float, float], band: tuple[float, float]) -> tuple[
+                   ridge: tuple[float, float, float], band: tuple[float, float], *,
+                   spread: int = 4) -> tuple[
                        NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
                        NDArray[np.float64]]:
     """Cost rise of mode i at log-frequency offsets u (in linearised std), its damping minimised.
 
     Dampings are tried along the linearised ridge (the damping's regression on the frequency)
-    and 4 conditional std either side of it. Returns, per offset: the rise (a parabola
-    through the best three dampings), the frequency, and the best damping and its residue.
+    and ``spread`` conditional std either side of it, one std apart. Returns, per offset:
+    the rise (a parabola through the best three dampings), the frequency, and the best
+    damping and its residue.
     """
     omega, zeta, lag = joint.unpack(x)
     s_w, s_z, rho = ridge
     lo, hi = band
     w = np.clip(omega[i] * np.exp(s_w * u), lo * 1.0001, hi / 1.0001)
-    v = np.linspace(-4.0, 4.0, 9)
+    v = np.linspace(-float(spread), float(spread), 2 * spread + 1)
     logz = (math.log(zeta[i]) + rho * s_z * u[:, None]
             + s_z * math.sqrt(max(1.0 - rho * rho, 1e-6)) * v[None, :])
     z = np.exp(np.clip(logz, math.log(1e-5), math.log(0.9)))
@@ -228,7 +230,7 @@ def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[n
         rho = float(np.clip(cov[jw, jz] / math.sqrt(var_w * var_z), -1.0, 1.0))
         ridge = (s_w, s_z, rho)
         rise = _omega_profile(joint, i, x, np.array([-3.0, -1.0, 1.0, 3.0]), ridge,
-                              band_list[i])[0]
+                              band_list[i], spread=2)[0]
         if rise[0] >= QUADRATIC_SHORTFALL * 9.0 * rise[1] \
                 and rise[3] >= QUADRATIC_SHORTFALL * 9.0 * rise[2]:
             continue

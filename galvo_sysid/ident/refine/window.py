@@ -179,8 +179,12 @@ def _fft_size(n: int) -> int:
 
 
 def _autocovariance(dev: NDArray[np.float64], order: int) -> NDArray[np.float64]:
+    """Sum over the moves (rows) of each lag's products, lags 0..order (one FFT pass)."""
     n = dev.shape[1]
-    return np.array([np.sum(dev[:, lag:] * dev[:, : n - lag]) for lag in range(order + 1)])
+    size = _fft_size(n + order)  # no wrap-around for the lags wanted
+    f = np.fft.rfft(dev, size, axis=1)
+    power = np.sum(f.real * f.real + f.imag * f.imag, axis=0)
+    return np.asarray(np.fft.irfft(power, size)[: order + 1], dtype=np.float64)
 
 
 def _normalised(r: NDArray[np.float64]) -> NDArray[np.float64]:
