@@ -46,6 +46,14 @@ def test_pade_matches_python_control(order):
     np.testing.assert_allclose(den, np.asarray(den_c) * scale, rtol=1e-9)
 
 
+
+def test_pade_default_is_the_3_3_approximant():
+    """Without an order, [3/3]: 1 -+ d s / 2 + (d s)^2 / 10 -+ (d s)^3 / 120."""
+    d = 0.6 * T
+    num, den = pade_coefficients(d)
+    np.testing.assert_allclose(den, [d**3 / 120, d**2 / 10, d / 2, 1.0], rtol=1e-12)
+    np.testing.assert_allclose(num, [-d**3 / 120, d**2 / 10, -d / 2, 1.0], rtol=1e-12)
+
 def test_paper_filter_is_allpass_with_16_sample_delay():
     b, a = paper_delay_filter(sample_period=T)
     b2, a2 = pade_delay_filter(1.6 * T, sample_period=T)
