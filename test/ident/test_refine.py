@@ -294,6 +294,8 @@ def test_a_single_record_is_fitted_with_its_own_nuisance() -> None:
     assert max(abs(e) for e in relative_errors(fit.model).values()) < 1e-5
     assert len(fit.initial_conditions) == 2 * 3
     assert abs(fit.offset) < 1e-9
+    with pytest.raises(InvalidDataError, match='at least 1 move'):  # and no record is none
+        refine_fit(cur[:0], enc[:0], sample_period=TAU, initial=REFERENCE_MODEL)
 
 
 def test_a_joint_fit_needs_3_moves_per_window_and_keeps_no_window_nuisance() -> None:
