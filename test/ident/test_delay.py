@@ -46,6 +46,14 @@ def test_pade_matches_python_control(order):
     np.testing.assert_allclose(den, np.asarray(den_c) * scale, rtol=1e-9)
 
 
+
+def test_pade_default_is_the_3_3_approximant():
+    """Without an order, [3/3]: 1 -+ d s / 2 + (d s)^2 / 10 -+ (d s)^3 / 120."""
+    d = 0.6 * T
+    num, den = pade_coefficients(d)
+    np.testing.assert_allclose(den, [d**3 / 120, d**2 / 10, d / 2, 1.0], rtol=1e-12)
+    np.testing.assert_allclose(num, [-d**3 / 120, d**2 / 10, -d / 2, 1.0], rtol=1e-12)
+
 def test_paper_filter_is_allpass_with_16_sample_delay():
     b, a = paper_delay_filter(sample_period=T)
     b2, a2 = pade_delay_filter(1.6 * T, sample_period=T)
@@ -202,3 +210,42 @@ def test_estimate_delay_bad_configuration():
         estimate_delay(ua, ya, sample_period=T, bands=[(1e3, 1e6)])
     with pytest.raises(ConfigurationError):
         estimate_delay(ua, ya, sample_period=T, search=(3 * T, T))
+
+
+# -- what the mutation run of tools/mutate.py found untested (docs/mutation.md) -------------
+
+@pytest.mark.parametrize('period', [T, 2.71e-5, 4.1e-5])
+def test_whole_sample_delays_are_exact_shifts_whatever_the_rounding(period):
+    """k T in floating point is often a hair below k samples (5 x 1e-5 / 1e-5 leaves a
+    fraction of 1 - 1e-16): the filter must still be z^-k, not z^-(k-1)."""
+    for k in range(40):
+        b, a = pade_delay_filter(k * period, sample_period=period)
+        expected = np.zeros(k + 1)
+        expected[-1] = 1.0
+        np.testing.assert_array_equal(b, expected, err_msg=str(k))
+        np.testing.assert_array_equal(a, [1.0])
+
+
+def test_lag_filter_tustin_is_the_bilinear_transform():
+    tl = 0.6 * T
+    b, a = lag_delay_filter(sample_period=T, lag_time_constant=tl, discretization='tustin',
+                            computation_delay=0)
+    ref = control.c2d(control.tf([1.0], [tl, 1.0]), T, method='tustin')
+    num, den = np.ravel(ref.num[0][0]), np.ravel(ref.den[0][0])
+    np.testing.assert_allclose(b, num / den[0], rtol=1e-12)
+    np.testing.assert_allclose(a, den / den[0], rtol=1e-12)
+
+
+def test_settings_at_the_edge_of_their_range_are_refused():
+    with pytest.raises(ConfigurationError, match='prewarp'):
+        lag_delay_filter(sample_period=T, lag_time_constant=T, discretization='tustin',
+                         prewarp=0.0)
+    with pytest.raises(ConfigurationError, match='prewarp'):
+        lag_delay_filter(sample_period=T, lag_time_constant=T, discretization='tustin',
+                         prewarp=np.pi / T)
+    u, y = open_loop_window(0.3, moves=4, seed=0)
+    ua, ya = average_records(u, y)
+    with pytest.raises(ConfigurationError, match='search'):
+        estimate_delay(ua, ya, sample_period=T, search=(T, T))
+    with pytest.raises(ConfigurationError, match='band'):
+        estimate_delay(ua, ya, sample_period=T, bands=[(0.0, 1e4)])

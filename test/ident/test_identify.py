@@ -12,9 +12,17 @@ from openloop_data import open_loop_window
 
 from galvo_sysid.errors import ConfigurationError, IdentificationError, InvalidDataError
 from galvo_sysid.ident.identify import identify_joint, identify_window
+from galvo_sysid.ident.paper import paper_pipeline
 from galvo_sysid.ident.pool import pool_results
 from galvo_sysid.ident.result import IdentificationResult
-from galvo_sysid.model import PSI, REFERENCE_MODEL, TAU, ModalModel, relative_errors
+from galvo_sysid.model import (
+    PAPER_MODEL,
+    PSI,
+    REFERENCE_MODEL,
+    TAU,
+    ModalModel,
+    relative_errors,
+)
 from galvo_sysid.sim.simulator import simulate_window
 
 FIELDS = ('target_angle', 'moves', 'input_delay', 'lag_time_constant', 'k0', 'residues',
@@ -231,3 +239,71 @@ def test_result_model_round_trip() -> None:
     assert res.model == model
     assert res.to_dict()['target_angle'] is None
     assert res.std_by_name() == {'k0': 0.1, 'k1': 0.2, 'omega_1': 0.3, 'zeta_1': 0.01}
+
+
+# -- what the mutation run of tools/mutate.py found untested (docs/mutation.md) -------------
+
+def test_paper_std_is_the_delete_a_group_jackknife(windows_1psi: list) -> None:
+    """The paper methods' std: sqrt((k - 1) / k sum (theta_j - mean)^2) over the k fits that
+    leave one group of moves out (move i in group i mod k), here k = 3 on 9 moves."""
+    cur, enc = (a[:9] for a in windows_1psi[1])
+    res = identify_window(cur, enc, sample_period=TAU, method='paper-A', jackknife_groups=3)
+    assert res.set_aside == ()
+    labels = np.arange(9) % 3
+    fits = np.array([list(paper_pipeline(
+        cur[labels != j], enc[labels != j], sample_period=TAU, method='A',
+        delay=PAPER_MODEL.equivalent_delay, bands=PAPER_MODEL.mode_bands(),
+        reference=PAPER_MODEL.modal).model.parameters().values()) for j in range(3)])
+    expected = np.sqrt(2 / 3 * np.sum((fits - fits.mean(axis=0)) ** 2, axis=0))
+    got = np.array(list(res.std_by_name().values()))
+    np.testing.assert_allclose(got, expected, rtol=1e-9)
+
+
+def test_options_are_those_of_the_method(windows_1psi: list) -> None:
+    """The refined fit's options are accepted by method 'refined' only."""
+    cur, enc = windows_1psi[2]
+    with pytest.raises(ConfigurationError, match='unknown options'):
+        identify_window(cur, enc, sample_period=TAU, method='paper-A', scan_points=4)
+    res = identify_window(cur[:20], enc[:20], sample_period=TAU, scan_points=4,
+                          whiten_order=16, estimate_lag=False)
+    assert res.lag_time_constant == PAPER_MODEL.dynamics.lag_time_constant
+
+
+def test_joint_fit_of_another_mode_count_needs_bands(windows_1psi: list) -> None:
+    with pytest.raises(ConfigurationError, match='pass bands'):
+        identify_joint(windows_1psi[:2], sample_period=TAU, n_modes=2)
+
+
+@pytest.mark.parametrize('samples', [2, 74])
+def test_records_shorter_than_arx_15_15_needs_are_refused_saying_so(windows_1psi: list,
+                                                                     samples: int) -> None:
+    """ARX(15, 15) needs 15 + 2 (15 + 15) = 75 samples; shorter records are refused by the
+    validation, which says why (records too short to be screened are passed on to it)."""
+    cur, enc = (a[:6, :samples] for a in windows_1psi[0])
+    with pytest.raises(InvalidDataError, match=r'ARX\(15, 15\) needs at least 75'):
+        identify_window(cur, enc, sample_period=TAU)
+
+
+def test_records_of_75_samples_are_fitted(windows_1psi: list) -> None:
+    cur, enc = (a[:6, :75] for a in windows_1psi[0])
+    assert identify_window(cur, enc, sample_period=TAU).model.n_modes == 3
+
+
+def test_joint_fit_of_another_mode_count_with_bands(windows_1psi: list) -> None:
+    bands = PAPER_MODEL.mode_bands()[:2]
+    windows = [(c[:20], e[:20]) for c, e in windows_1psi[:2]]
+    joint = identify_joint(windows, sample_period=TAU, n_modes=2, bands=bands)
+    assert joint.model.n_modes == 2
+    assert joint.moves == 40
+
+
+def test_joint_fit_starts_from_the_reference_when_no_window_fits_alone(
+        windows_1psi: list, monkeypatch: pytest.MonkeyPatch) -> None:
+    def fails(*args: object, **kwargs: object) -> IdentificationResult:
+        raise IdentificationError('no single-window fit')
+
+    monkeypatch.setattr('galvo_sysid.ident.identify.identify_window', fails)
+    windows = [(c[:20], e[:20]) for c, e in windows_1psi[:2]]
+    joint = identify_joint(windows, sample_period=TAU)
+    assert joint.model.n_modes == 3
+    assert joint.moves == 40

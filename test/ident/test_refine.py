@@ -14,6 +14,7 @@ from galvo_sysid.ident.refine import (
     modal_regressors,
     model_fit_percent,
     refine_fit,
+    refine_joint,
     second_difference,
 )
 from galvo_sysid.model import (
@@ -281,3 +282,65 @@ def test_a_strong_mode_with_a_flat_cost_gets_the_std_of_its_profile(
     for i in range(1, 5):  # quadratic costs keep their linearised std
         name = f'omega_{i}'
         assert checked[name][1] == pytest.approx(linearised[name][1], rel=1e-9)
+
+
+# -- what the mutation run of tools/mutate.py found untested (docs/mutation.md) -------------
+
+def test_a_single_record_is_fitted_with_its_own_nuisance() -> None:
+    """One record (N,) is a window of one move; its fit reports the window's nuisance: two
+    free-response amplitudes per mode and the offset (none in these data)."""
+    cur, enc = noise_free()
+    fit = refine_fit(cur[0], enc[0], sample_period=TAU, initial=REFERENCE_MODEL)
+    assert max(abs(e) for e in relative_errors(fit.model).values()) < 1e-5
+    assert len(fit.initial_conditions) == 2 * 3
+    assert abs(fit.offset) < 1e-9
+    with pytest.raises(InvalidDataError, match='at least 1 move'):  # and no record is none
+        refine_fit(cur[:0], enc[:0], sample_period=TAU, initial=REFERENCE_MODEL)
+
+
+def test_a_joint_fit_needs_3_moves_per_window_and_keeps_no_window_nuisance() -> None:
+    windows = [noise_free(PSI), noise_free(-3 * PSI)]
+    with pytest.raises(InvalidDataError, match='window 1: a joint fit needs at least 3 moves'):
+        refine_joint([windows[0], (windows[1][0][:2], windows[1][1][:2])], sample_period=TAU,
+                     initial=REFERENCE_MODEL)
+    joint = refine_joint(windows, sample_period=TAU, initial=REFERENCE_MODEL)
+    assert max(abs(e) for e in relative_errors(joint.model).values()) < 1e-5
+    assert joint.initial_conditions == ()
+    assert np.isnan(joint.offset)
+
+
+def test_the_starting_scan_finds_a_mode_started_10_percent_off() -> None:
+    """Mode 3 started 10 % high: the scan over its band finds it; without the scan the fit
+    stays in a wrong basin (so the scan is what this test checks)."""
+    cur, enc = noise_free()
+    w = list(REFERENCE_MODEL.natural_frequencies)
+    w[2] *= 1.1
+    start = ModalModel(k0=REFERENCE_MODEL.k0, residues=REFERENCE_MODEL.residues,
+                       natural_frequencies=tuple(w), damping_ratios=REFERENCE_MODEL.damping_ratios)
+    fit = refine_fit(cur, enc, sample_period=TAU, initial=start)
+    assert max(abs(e) for e in relative_errors(fit.model).values()) < 1e-5
+    unscanned = refine_fit(cur, enc, sample_period=TAU, initial=start,
+                           options=RefineOptions(scan_points=0))
+    assert abs(relative_errors(unscanned.model)['omega_3']) > 0.05
+
+
+def test_a_model_without_resonant_modes_is_fitted() -> None:
+    rigid = ModalModel(k0=REFERENCE_MODEL.k0, residues=(), natural_frequencies=(),
+                       damping_ratios=())
+    cur, enc = noise_free(model=rigid)
+    fit = refine_fit(cur, enc, sample_period=TAU, initial=rigid)
+    assert fit.model.n_modes == 0
+    assert fit.model.k0 == pytest.approx(REFERENCE_MODEL.k0, rel=1e-9)
+
+
+def test_a_mode_is_unresolved_when_its_residue_is_below_resolve_z_of_its_own_std() -> None:
+    """1 psi, 100 moves: |k_i| / std(k_i) is about 275, 103 and 4.3; with resolve_z = 150 the
+    first mode alone is resolved, with 50 the first two."""
+    cur, enc = simulate_window(PSI, moves=100, seed=0)
+    for z, unresolved in ((150.0, (2, 3)), (50.0, (3,))):
+        fit = refine_fit(cur, enc, sample_period=TAU, initial=REFERENCE_MODEL,
+                         options=RefineOptions(resolve_z=z))
+        assert fit.unresolved_modes == unresolved, z
+        est, std = fit.model.parameters(), fit.std_by_name()
+        for i in range(1, 4):
+            assert (i in unresolved) == (abs(est[f'k{i}']) < z * std[f'k{i}']), (z, i)

@@ -551,3 +551,37 @@ def test_refused_half_is_set_aside_with_its_partner_once() -> None:
     assert (r.move_id, r.reason) == (7, 'current record too long')
     assert w.refused_halves == 1
     assert w.pending == 0
+
+
+def test_counters_start_at_zero_and_count_every_rejection_once() -> None:
+    """The counters the sysid node reports (moves_rejected, halves_evicted, windows_evicted)
+    start at 0 and move by one per event; moves_rejected equals the rejections said."""
+    w = MoveWindower(window_size=3, max_pending=2, max_windows=1)
+    counters = ('moves_rejected', 'moves_accepted', 'halves_evicted', 'windows_evicted',
+                'windows_expired', 'refused_halves', 'stale_halves', 'period_mismatches',
+                'resets')
+    assert {c: getattr(w, c) for c in counters} == dict.fromkeys(counters, 0)
+    said = []
+    feed(w, list(halves(-1)))  # a negative move_id: each half set aside alone
+    said += w.pop_rejections()
+    assert [r.reason for r in said] == ['negative move_id'] * 2
+    assert w.moves_rejected == 2
+    feed(w, [halves(i)[0] for i in range(1, 5)])  # 4 unpaired currents, room for 2
+    new = w.pop_rejections()
+    assert [(r.move_id, r.reason) for r in new] == [
+        (1, 'unpaired: evicted, more than 2 halves waiting'),
+        (2, 'unpaired: evicted, more than 2 halves waiting')]
+    assert (w.halves_evicted, w.moves_rejected) == (2, 4)
+    said += new
+    c3, e3 = halves(3)
+    feed(w, [e3, c3])  # the current of move 3 again: a duplicate, said once
+    new = w.pop_rejections()
+    assert [r.reason for r in new] == ['duplicate move_id (current seen twice)']
+    assert w.moves_rejected == 5
+    said += new
+    feed(w, [halves(4)[1], *halves(5, -0.3)])  # room for one window: one is evicted
+    new = w.pop_rejections()
+    assert [(r.move_id, r.reason.split(':')[0]) for r in new] == [(5, 'window evicted')]
+    assert (w.windows_evicted, w.moves_accepted) == (1, 2)
+    said += new
+    assert w.moves_rejected == len(said) == 6

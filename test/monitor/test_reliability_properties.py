@@ -214,6 +214,7 @@ def test_every_move_is_windowed_or_set_aside_exactly_once(
     assert all(x.moves == window_size for x in full)
     assert w.pending == w.open_windows == w.buffered_samples == 0
     assert w.moves_accepted == sum(windowed.values())
+    assert w.moves_rejected == len(rejections)
 
 
 @examples(200)
@@ -245,6 +246,7 @@ def test_tight_limits_evict_moves_once_and_never_also_window_them(
         assert fate == 1, (p, windowed.get(p.move_id), set_aside.get(p.move_id))
         if p.kind in FAULTS:
             assert p.move_id not in windowed
+    assert w.moves_rejected == len(rejections)
 
 
 @examples(60)

@@ -321,3 +321,60 @@ def test_serialized_cdr_of_5m_doubles_is_refused_in_constant_memory() -> None:
     assert peak < 1_000_000  # the 40 MB of samples were never decoded
     assert task.stats()['halves_refused'] == 1
     assert task.windower.buffered_bytes == 0
+
+
+# -- what the mutation run of tools/mutate.py found untested (docs/mutation.md) -------------
+
+def test_a_message_that_cannot_be_converted_is_one_rejection_and_said() -> None:
+    warnings: list[str] = []
+    task = SysidTask(lambda w: fake_result(), lambda o: None, warn=warnings.append)
+    task.set_aside('not a MoveSamples message')
+    task.close()
+    assert task.stats()['moves_rejected'] == 1
+    assert warnings == ['message set aside: not a MoveSamples message']
+
+
+def test_health_counters_of_a_replaced_windower_never_go_below_zero() -> None:
+    """A windower replaced by new settings counts from 0 again: fewer than at the last report
+    is nothing new, not a negative number of problems."""
+    task = SysidTask(lambda w: fake_result(), lambda o: None, warn=lambda line: None)
+    since = dict(task.stats(), moves_rejected=5, windows_failed=2, windows_dropped=1,
+                 windows_identified=3, windows_mismatched=1, halves_period_mismatched=4)
+    task.close()
+    assert task.health(since) == (OK, '0 windows identified, 0 moves used')
+
+
+def test_moves_of_another_sample_period_are_an_error_only_in_the_report_that_saw_them() -> None:
+    from galvo_sysid.sim.family import random_scanner
+
+    task = SysidTask(lambda w: fake_result(), lambda o: None, warn=lambda line: None,
+                     windower={'window_size': 5, 'sample_period': 1e-5})
+    before = task.stats()
+    for h in halves_of(GalvoSimulator(config=random_scanner(35).config, seed=2), [0.3], 4):
+        task.add(h)
+    task.close()
+    assert task.health(before)[0] == ERROR
+    assert task.health(task.stats())[0] == OK
+
+
+def test_warnings_beyond_the_rate_are_summed_up_by_reason() -> None:
+    from galvo_sysid.monitor.ratelog import RateLimitedLog
+
+    warnings: list[str] = []
+    now = [0.0]
+    task = SysidTask(lambda w: fake_result(), lambda o: None, warn=warnings.append,
+                     windower={'window_size': 10})
+    task._warn = RateLimitedLog(warnings.append, per_second=1, clock=lambda: now[0])
+    items = halves_of(GalvoSimulator(seed=1), [0.3], 6)
+    for i in (3, 7, 11):  # encoders of moves 1, 3 and 5 (return moves, -0.3 deg)
+        items[i] = MoveHalf(items[i].signal, items[i].move_id, items[i].target_angle,
+                            items[i].sample_period, items[i].stamp,
+                            np.full(items[i].data.shape, np.nan))
+    for h in items:
+        task.add(h)
+    now[0] = 1.5
+    task.tick()
+    task.close()
+    assert warnings == ['1 move set aside (id 1; -0.3 deg): NaN or Inf in encoder',
+                        '2 more similar message(s) held back in the last second: '
+                        '2 x NaN or Inf in encoder']
