@@ -54,7 +54,7 @@ output:
   current, or of the angle on the encoder reading): a proposal, never a name.
   --report DIR writes spectra.png, moves.png, candidates.png, where.png, summary.txt,
   result.json and model.yaml (the augmented model, loadable by --model), and
-  proposal.yaml when there is a proposal (to read: its terms cannot yet be simulated).
+  proposal.yaml when there is a proposal (a model file with its proposed_terms effect).
 
 examples:
   galvo-sysid simulate --out /tmp/fric --angles 0.1psi 1psi 10psi --moves-per-angle 40 \\
