@@ -66,3 +66,22 @@ def test_never_a_candidate():
     moves = measured(hidden_effects(), seed=0, moves_per_angle=2, noise=False)
     with pytest.raises(ConfigurationError, match='proposed_terms'):
         find_discrepancy(moves, effects=['proposed_terms'])
+
+
+def test_the_commands_load_a_proposal_model(tmp_path, capsys):
+    """`simulate --model` and `discrepancy --model` take a model file with the terms (as
+    ``proposal.yaml`` is): moves simulated with it are consistent with it."""
+    import json
+
+    from galvo_sysid.cli.main import main
+    from galvo_sysid.model.files import save_model
+
+    path = save_model(PAPER_MODEL.with_effect('proposed_terms', {'current_x3': -3e-3}),
+                      tmp_path / 'proposal.yaml')
+    bag = tmp_path / 'bag'
+    assert main(['simulate', '--out', str(bag), '--model', str(path), '--angles', '0.1psi',
+                 '1psi', '10psi', '--moves-per-angle', '20', '--seed', '1']) == 0
+    capsys.readouterr()
+    assert main(['discrepancy', str(bag), '--model', str(path), '--json']) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out['verdict'] == 'consistent'
