@@ -54,7 +54,7 @@ output:
   current, or of the angle on the encoder reading): a proposal, never a name.
   --report DIR writes spectra.png, moves.png, candidates.png, where.png, summary.txt,
   result.json and model.yaml (the augmented model, loadable by --model), and
-  proposal.yaml when there is a proposal (to read: its terms cannot yet be simulated).
+  proposal.yaml when there is a proposal (a model file with its proposed_terms effect).
 
 examples:
   galvo-sysid simulate --out /tmp/fric --angles 0.1psi 1psi 10psi --moves-per-angle 40 \\
@@ -73,6 +73,8 @@ def _description() -> str:
 
     lines = []
     for name, kind in EFFECTS.items():
+        if not kind.candidate:
+            continue
         params = ', '.join(f'{p.name} [{p.unit}]' if p.unit else p.name
                            for p in kind.parameters)
         lines.append(f'  {name:<21}{params}')
@@ -82,13 +84,13 @@ def _description() -> str:
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``discrepancy`` subcommand to an argparse subparsers object."""
     from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD, DEFAULT_TOLERANCE
-    from galvo_sysid.model.effects import EFFECT_NAMES
+    from galvo_sysid.model.effects import CANDIDATE_NAMES
 
     p: argparse.ArgumentParser = subparsers.add_parser(
         'discrepancy', formatter_class=HelpFormatter, description=_description(),
         epilog=_EPILOG,
         help='where a plant model and a bag disagree, and which effect is missing')
-    _arguments(p, DEFAULT_THRESHOLD, EFFECT_NAMES, DEFAULT_TOLERANCE)
+    _arguments(p, DEFAULT_THRESHOLD, CANDIDATE_NAMES, DEFAULT_TOLERANCE)
     return p
 
 
@@ -173,11 +175,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run ``discrepancy`` alone (``python -m galvo_sysid.cli.discrepancy``)."""
     limit_blas_threads()  # before numpy is imported
     from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD, DEFAULT_TOLERANCE
-    from galvo_sysid.model.effects import EFFECT_NAMES
+    from galvo_sysid.model.effects import CANDIDATE_NAMES
 
     parser = argparse.ArgumentParser(prog='galvo-sysid discrepancy', description=_description(),
                                      epilog=_EPILOG, formatter_class=HelpFormatter)
-    _arguments(parser, DEFAULT_THRESHOLD, EFFECT_NAMES, DEFAULT_TOLERANCE)
+    _arguments(parser, DEFAULT_THRESHOLD, CANDIDATE_NAMES, DEFAULT_TOLERANCE)
     args = parser.parse_args(argv)
     return guarded('galvo-sysid discrepancy', lambda: run(args))
 

@@ -1,6 +1,6 @@
 """The candidate effects: each one fitted to the moves on top of a model, and scored.
 
-Each candidate of :data:`~galvo_sysid.model.effects.EFFECT_NAMES` is fitted (its parameters
+Each candidate of :data:`~galvo_sysid.model.effects.CANDIDATE_NAMES` is fitted (its parameters
 minimise the comparison's cost J, see :mod:`galvo_sysid.discrepancy.compare`) and scored by
 the drop of the Bayesian information criterion, score = 2 (J_model - J_candidate) - p ln(n)
 (p fitted parameters, n real data points; the unmodelled resonance pays 2 ln(bins) more for

@@ -281,7 +281,7 @@ class Comparison:
                 phys, self.mean_ext, self.mean_current, hold=hold)
         hold = sim.holding_current(sim.true_start(self.start))[:, None]
         carry = self.carry(phys, self.ext, self.moves.current, hold=hold)
-        if phys.encoder_error_amplitude:    # the encoder reads the carried ringing too
+        if phys.reading_error:    # the encoder reads the carried ringing too
             y = sim.simulate(self.moves.current, self.start, extra=carry)
         else:
             y = sim.simulate(self.moves.current, self.start) + carry

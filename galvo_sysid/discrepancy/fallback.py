@@ -10,8 +10,9 @@ encoder's reading. Forward selection (orthogonal matching pursuit) takes at most
 ``max_terms`` terms, each only if its BIC drop (the workflow's score, with the same noise
 weighting and look-elsewhere penalties for the term and its period) exceeds the threshold,
 so noise alone proposes nothing. The result is a proposal, never a name: the verdict stays
-``unexplained``, and the terms cannot yet be simulated (:meth:`Proposal.to_yaml` writes them
-for the user to read).
+``unexplained``. The dictionary's laws are :data:`galvo_sysid.model.terms.TERMS`, which the
+registry's ``proposed_terms`` effect simulates: :meth:`Proposal.model` is the model with the
+proposal added, :meth:`Proposal.to_yaml` its model file (``proposal.yaml`` of the report).
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ import numpy as np
 from galvo_sysid.discrepancy.candidates import _Fitter
 from galvo_sysid.discrepancy.spectra import _fft_conv, _gap, _second_difference_spectrum, _stack
 from galvo_sysid.jsonsafe import finite_or_none
+from galvo_sysid.model.files import model_to_yaml
+from galvo_sysid.model.terms import PERIODIC_TERMS, TERMS
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -38,29 +41,12 @@ __all__ = ['DEFAULT_MAX_TERMS', 'Proposal', 'ProposedTerm', 'propose']
 DEFAULT_MAX_TERMS = 3
 """Most dictionary terms a proposal holds."""
 
-_Law = Callable[..., Any]
-
-# name: (law of (x, v, a, i), unit of its coefficient)
-_TORQUE: dict[str, tuple[_Law, str]] = {
-    'x': (lambda x, v, a, i: x, 'A/deg'),
-    'x|x|': (lambda x, v, a, i: x * np.abs(x), 'A/deg^2'),
-    'x^3': (lambda x, v, a, i: x**3, 'A/deg^3'),
-    'v': (lambda x, v, a, i: v, 'A s/deg'),
-    'v|v|': (lambda x, v, a, i: v * np.abs(v), 'A s^2/deg^2'),
-    'sign(v)': (lambda x, v, a, i: np.sign(v), 'A'),
-    'a': (lambda x, v, a, i: a, 'A s^2/deg'),
-    'i|i|': (lambda x, v, a, i: i * np.abs(i), '1/A'),
-    'i^3': (lambda x, v, a, i: i**3, '1/A^2'),
-}
-_READING: dict[str, tuple[_Law, str]] = {
-    'x': (lambda x, v, a, i: x, '1'),
-    'x^2': (lambda x, v, a, i: x**2, '1/deg'),
-    'x|x|': (lambda x, v, a, i: x * np.abs(x), '1/deg'),
-    'x^3': (lambda x, v, a, i: x**3, '1/deg^2'),
-}
-_PERIODIC = (('current', 'sin(2 pi x / P)', 'A'), ('current', 'i sin(2 pi x / P)', '1'),
-             ('reading', 'sin(2 pi x / P)', 'deg'))
-"""Periodic families (side, expression, unit of the amplitude): a sine and a cosine each."""
+_TORQUE: dict[str, tuple[Callable[..., Any], str]] = {
+    t.expression: (t.law, t.unit) for t in TERMS if t.side == 'current'}
+_READING: dict[str, tuple[Callable[..., Any], str]] = {
+    t.expression: (t.law, t.unit) for t in TERMS if t.side == 'reading'}
+"""The dictionary's laws (name: (law of (x, v, a, i), unit of its coefficient)), from
+:data:`galvo_sysid.model.terms.TERMS`, which the ``proposed_terms`` effect simulates."""
 
 _COLLINEAR = 0.1
 """A term whose columns keep less than this share of their norm outside the terms already
@@ -148,19 +134,35 @@ class Proposal:
                 'share_closed': finite_or_none(self.share_closed),
                 'noise_gap': finite_or_none(self.noise_gap), 'sentence': self.sentence}
 
-    def to_yaml(self) -> str:
-        """A YAML snippet of the terms to read (not a model file: they cannot be simulated)."""
-        lines = ['# galvo-sysid discrepancy: a data-driven proposal, not a named effect.',
-                 '# Not loadable as a model: these terms cannot yet be simulated.',
-                 f'# gap {self.gap_before:.4g} -> {self.gap_after:.4g} (linearised; noise '
-                 f'alone stays below {self.noise_gap:.3g})', 'proposal:']
+    def parameters(self) -> dict[str, float]:
+        """The ``proposed_terms`` effect's parameters of the terms (:mod:`.model.terms`)."""
+        out: dict[str, float] = {}
         for t in self.terms:
-            lines += [f"  - term: '{t.term}'", f'    acts_on: {t.side}',
-                      f'    coefficient: {t.coefficient:.6g}', f"    unit: '{t.unit}'"]
             if math.isfinite(t.period):
-                lines += [f'    period: {t.period:.6g}  # deg', f'    phase: {t.phase:.6g}  # rad']
-            lines.append(f'    gap_after: {t.gap_after:.4g}')
-        return '\n'.join(lines) + '\n'
+                prefix = next(f.prefix for f in PERIODIC_TERMS
+                              if (f.side, f.expression) == (t.side, t.term))
+                out.update({f'{prefix}_amplitude': t.coefficient, f'{prefix}_period': t.period,
+                            f'{prefix}_phase': t.phase})
+            else:
+                out[next(x.parameter for x in TERMS
+                         if (x.side, x.expression) == (t.side, t.term))] = t.coefficient
+        return out
+
+    def model(self, base: PlantModel) -> PlantModel:
+        """``base`` (the model whose residual was fitted) with the terms added as the
+        ``proposed_terms`` effect."""  # noqa: D205, D209
+        return base.with_effect('proposed_terms', self.parameters())
+
+    def to_yaml(self, base: PlantModel) -> str:
+        """The model file of :meth:`model`, its header saying it holds a proposal."""
+        lines = ['# galvo-sysid discrepancy: a data-driven proposal, not a named effect.',
+                 '# The model the workflow ended with, plus its proposed_terms effect:'] + [
+                 f'#   {t.label} on the {t.side}: {t.coefficient:.6g} {t.unit}'
+                 + (f', phase {t.phase:.4g} rad' if math.isfinite(t.period) else '')
+                 + f' (gap after: {t.gap_after:.4g})' for t in self.terms] + [
+                 f'# gap {self.gap_before:.4g} -> {self.gap_after:.4g} (linearised; noise '
+                 f'alone stays below {self.noise_gap:.3g}). Load it with --model to check.']
+        return '\n'.join(lines) + '\n' + model_to_yaml(self.model(base))
 
 
 @dataclass(frozen=True)
@@ -213,8 +215,9 @@ class _Dictionary:
                 for name, (law, unit) in table.items()]
         periods = self.fitter._periods()
         extra = 2.0 * math.log(len(periods))
-        for side, term, unit in _PERIODIC:
-            factor = i if term.startswith('i ') else 1.0
+        for fam in PERIODIC_TERMS:
+            side, term, unit = fam.side, fam.expression, fam.unit
+            factor = i if fam.times_current else 1.0
             fams.append([_Column(term, side, unit, self.whiten(
                 [factor * np.sin(2 * math.pi * x / p), factor * np.cos(2 * math.pi * x / p)],
                 side), period=float(p), extra=extra) for p in periods])

@@ -279,13 +279,24 @@ class PlantSimulator:
 
     def holding_current(self, start: NDArray[np.float64]) -> NDArray[np.float64]:
         """Command that holds the plant at rest at the shaft angle ``start`` [deg]: against
-        the pivot spring (0 without one) and the cogging torque there."""  # noqa: D205, D209
+        the pivot spring (0 without one), the cogging torque and the proposed terms' current
+        there (those of the current itself solved for by fixed-point iteration)."""  # noqa: D205, D209
         ph = self.physics
         torque = (np.zeros_like(start) if ph.pivot_frequency <= 0 else
                   start / ph.static_gain())
         if ph.cogging_amplitude:
             torque = torque - ph.cogging(self.rigid_start(start), 0.0)
-        return np.asarray(torque / ph.gain_ratio, dtype=np.float64)
+        u = np.asarray(torque / ph.gain_ratio, dtype=np.float64)
+        if ph.current_terms:
+            p0 = self.rigid_start(start)
+            for _ in range(100):
+                new = (torque - ph.term_current(p0, 0.0, 0.0, u)) / ph.gain_ratio
+                done = float(np.max(np.abs(new - u), initial=0.0)) <= 1e-15 * (
+                    1.0 + float(np.max(np.abs(new), initial=0.0)))
+                u = np.asarray(new, dtype=np.float64)
+                if done:
+                    break
+        return u
 
     def true_start(self, start: ArrayLike) -> NDArray[np.float64]:
         """The shaft angle whose encoder reading is ``start`` (itself without a cyclic error)."""
@@ -314,7 +325,7 @@ class PlantSimulator:
             raise InvalidDataError('current contains NaN or Inf')
         ph = self.physics
         reading = np.broadcast_to(np.asarray(start, dtype=float), (u.shape[0],))
-        y0 = self.true_start(reading) if ph.encoder_error_amplitude else reading.copy()
+        y0 = self.true_start(reading) if ph.reading_error else reading.copy()
         u_eq = self.holding_current(y0)
         du = u - u_eq[:, None]
         n_len = self.length
@@ -324,7 +335,7 @@ class PlantSimulator:
                 y += extra.reshape(y.shape)
             return np.asarray(y.reshape(u_in.shape), dtype=np.float64)
         rigid = None
-        torques = ph.friction_current > 0 or ph.cogging_amplitude > 0
+        torques = ph.friction_current > 0 or ph.cogging_amplitude > 0 or ph.current_terms
         if math.isfinite(ph.current_limit):
             rows, inc = self._saturation(du, u_eq)
             if rows.size:
@@ -337,15 +348,15 @@ class PlantSimulator:
             off = self._off
             v_lin = self._convolve(self._u_states[:, off + 1], du, n_len + 1)
             p_lin = (self._convolve(self._u_states[:, off], du, n_len + 1)
-                     if ph.cogging_amplitude else np.zeros_like(v_lin))
+                     if ph.cogging_amplitude or ph.current_terms else np.zeros_like(v_lin))
             if rigid is not None:
                 p_lin += rigid[:, 0]
                 v_lin += rigid[:, 1]
-            d = self._torques(p_lin, v_lin, self.rigid_start(y0))
+            d = self._torques(p_lin, v_lin, self.rigid_start(y0), u, u_eq)
             y += self._convolve(self._friction_response(), d, n_len)
         if extra is not None:
             y += extra.reshape(y.shape)
-        if ph.encoder_error_amplitude:
+        if ph.reading_error:
             y = ph.reading(y)
         return np.asarray(y.reshape(u_in.shape), dtype=np.float64)
 
@@ -376,14 +387,18 @@ class PlantSimulator:
         return rows, inc
 
     def _torques(self, p_lin: NDArray[np.float64], v_lin: NDArray[np.float64],
-                 p_start: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Friction and cogging currents (M, N) held per sample.
+                 p_start: NDArray[np.float64], u: NDArray[np.float64],
+                 u_eq: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Friction, cogging and proposed terms' currents (M, N) held per sample.
 
         p_lin, v_lin (M, N + 1) are the rigid body's position (relative to its start
         ``p_start``) and velocity without these currents; their own share of the rigid body's
         position and velocity evolves with its one-sample transition. The cogging torque of
         the position and velocity at each sample's start (less its value at the start, which
-        the holding current takes) acts first; Coulomb friction then follows a stick-slip
+        the holding current takes) acts first, with the proposed terms' current (of that
+        position and velocity, the velocity change over the previous sample and the command u
+        (M, N), less its value at rest at the start with the holding current u_eq (M,));
+        Coulomb friction then follows a stick-slip
         law: the rotor stays stuck while the friction needed to hold it is at most
         ``friction_current``, otherwise it slides with the full friction against its
         velocity; a stop within a sample ends stuck, a reversal splits the sample at the
@@ -398,11 +413,17 @@ class PlantSimulator:
         limit = f * g_v                                 # largest velocity friction can stop
         spring = ph.pivot_frequency > 0 or ph.viscous_coefficient > 0
         cogging = ph.cogging_amplitude > 0
+        terms = ph.current_terms
+        moving = spring or cogging or terms          # the currents' share of position matters
         p00, p01, p10, p11 = (float(x) for x in phi.ravel())
         v_t = np.ascontiguousarray(v_lin.T)
         p_t = np.ascontiguousarray(p_lin.T + p_start)
         hold = ph.cogging(p_start, 0.0) if cogging else 0.0
+        hold_terms = ph.term_current(p_start, 0.0, 0.0, u_eq) if terms else 0.0
+        u_t = np.ascontiguousarray(u.T)
         m, n1 = v_lin.shape
+        v_last = np.zeros(m)
+        t = self.sample_period
         n = n1 - 1
         sp = np.zeros(m)                                # the currents' share of position
         sv = np.zeros(m)                                # ... and of velocity
@@ -412,7 +433,11 @@ class PlantSimulator:
             for k in range(n):
                 v0 = v_t[k] + sv
                 dc = ph.cogging(p_t[k] + sp, v0) - hold if cogging else 0.0
-                if spring or cogging:
+                if terms:
+                    dc = dc + (ph.term_current(p_t[k] + sp, v0, (v0 - v_last) / t, u_t[k])
+                               - hold_terms)
+                    v_last = v0
+                if moving:
                     fv = p10 * sp + p11 * sv + g_v * dc
                     sp = p00 * sp + p01 * sv + g_p * dc
                 else:
@@ -432,7 +457,7 @@ class PlantSimulator:
                 dk = np.where(stop, -v_free / g_v,
                               np.where(reverse, slide * (v0 + v_end) / (v0 - v_end), slide))
                 sv = np.where(stop, -v_t[k + 1], fv + g_v * dk)
-                if spring or cogging:
+                if moving:
                     sp = sp + g_p * dk
                 stuck = stop
                 d[k] = dk + dc

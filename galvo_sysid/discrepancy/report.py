@@ -14,8 +14,9 @@ The result is a :class:`~galvo_sysid.discrepancy.workflow.DiscrepancyResult`.
   move size, before and after,
 - ``summary.txt`` (:func:`format_result`), ``result.json`` (the ``--json`` object) and
   ``model.yaml`` (the augmented model),
-- ``proposal.yaml`` when the fallback proposed dictionary terms (a snippet to read: the
-  terms cannot yet be simulated).
+- ``proposal.yaml`` when the fallback proposed dictionary terms: a model file, the
+  augmented model plus the terms as the ``proposed_terms`` effect (a proposal, not a named
+  effect; its header says so), to load with ``--model``.
 
 Plots use matplotlib's Agg backend (no display needed).
 """
@@ -353,8 +354,10 @@ def write_report(result: DiscrepancyResult, directory: str | os.PathLike[str], *
     files.append(data)
     files.append(save_model(result.final_model, out / 'model.yaml'))
     if result.proposal is not None:
-        snippet = out / 'proposal.yaml'
-        snippet.write_text(result.proposal.to_yaml(), encoding='utf-8')
-        files.append(snippet)
+        proposal = out / 'proposal.yaml'
+        tmp = proposal.with_name('.proposal.yaml.tmp')
+        tmp.write_text(result.proposal.to_yaml(result.final_model), encoding='utf-8')
+        tmp.replace(proposal)
+        files.append(proposal)
     return files
 

@@ -30,7 +30,7 @@ from galvo_sysid.discrepancy.fallback import Proposal, propose
 from galvo_sysid.discrepancy.localise import Localisation, localise
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.jsonsafe import finite_or_none
-from galvo_sysid.model.effects import EFFECT_NAMES, EFFECTS
+from galvo_sysid.model.effects import CANDIDATE_NAMES
 from galvo_sysid.model.paper import PAPER_MODEL
 from galvo_sysid.model.plant import PlantModel
 
@@ -265,7 +265,7 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
                      threshold: float = DEFAULT_THRESHOLD, max_effects: int = 3,
                      min_gap: float | None = None, min_improvement: float = 0.25,
                      tolerance: float = DEFAULT_TOLERANCE,
-                     effects: Sequence[str] = EFFECT_NAMES, fallback: bool = True,
+                     effects: Sequence[str] = CANDIDATE_NAMES, fallback: bool = True,
                      progress: Callable[[str], None] | None = None) -> DiscrepancyResult:
     """Compare a model with measured moves, name the missing effects and add them.
 
@@ -283,7 +283,8 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
         tolerance: After effects were added, a remaining gap up to this many noise gaps
             still counts as explained (verdict ``named``); above it the verdict is
             ``unexplained``.
-        effects: Candidate effects to try.
+        effects: Candidate effects to try (of :data:`~galvo_sysid.model.effects.CANDIDATE_NAMES`;
+            the fallback's ``proposed_terms`` is never one).
         fallback: When the verdict is ``unexplained``, fit the remaining residual with a few
             terms of a dictionary of functions of the measured motion and current
             (:func:`.fallback.propose`): ``proposal`` of the result.
@@ -297,9 +298,10 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
         InvalidDataError: Too few moves.
         ConfigurationError: Unknown effect name or bad settings.
     """
-    unknown = [e for e in effects if e not in EFFECTS]
+    unknown = [e for e in effects if e not in CANDIDATE_NAMES]
     if unknown:
-        raise ConfigurationError(f'unknown effect(s) {unknown}; expected {EFFECT_NAMES}')
+        raise ConfigurationError(f'unknown candidate effect(s) {unknown}; expected '
+                                 f'{CANDIDATE_NAMES}')
     if not (math.isfinite(threshold) and max_effects >= 0 and 0 <= min_improvement < 1
             and math.isfinite(tolerance) and tolerance >= 1):
         raise ConfigurationError(

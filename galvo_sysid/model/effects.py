@@ -37,6 +37,14 @@ effect                   parameters
 ``amplifier_bandwidth``  ``bandwidth`` [Hz]: the current amplifier's first-order lag has this
                          -3 dB bandwidth (lag time constant 1 / (2 pi bandwidth); inf: no lag).
                          It acts before an ``input_delay``, whose total equivalent delay stays.
+``proposed_terms``       the discrepancy fallback's dictionary terms (:mod:`.terms`): one
+                         coefficient per term, e.g. ``current_x3`` [A/deg^3] (an extra current
+                         c x^3 of the rotor's angle) or ``reading_x_absx`` [1/deg] (the encoder
+                         reads y + c y|y|), and amplitude, period [deg] and phase [rad] of the
+                         periodic ones (``current_sin_*``, ``current_i_sin_*``,
+                         ``reading_sin_*``); every parameter defaults to 0 (absent). A
+                         data-driven proposal, not a named effect: the discrepancy workflow
+                         never tries it as a candidate (:data:`CANDIDATE_NAMES`).
 =======================  =====================================================================
 """
 
@@ -49,11 +57,13 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.model.terms import PERIODIC_TERMS, TERMS
 
 if TYPE_CHECKING:
     from galvo_sysid.model.physics import Physics
 
 __all__ = [
+    'CANDIDATE_NAMES',
     'EFFECTS',
     'EFFECT_NAMES',
     'MAX_EFFECTS',
@@ -85,6 +95,7 @@ class ParameterSpec:
         high: Largest value (``inf`` allowed only with ``allow_inf``).
         low_open: The value must be strictly above ``low``.
         allow_inf: ``inf`` means "none" (e.g. no current limit).
+        default: The value when the parameter is not given (None: it must be given).
     """
 
     name: str
@@ -94,6 +105,7 @@ class ParameterSpec:
     high: float = math.inf
     low_open: bool = False
     allow_inf: bool = False
+    default: float | None = None
 
     def check(self, effect: str, value: Any) -> float:
         """Return ``value`` as a float if allowed, else raise ConfigurationError."""
@@ -128,6 +140,8 @@ class EffectType:
         repeatable: Whether a model may carry several of it.
         order: Effects act in this order (stable within equal orders; the amplifier's
             bandwidth before the input delay, whose total it keeps).
+        candidate: Whether the discrepancy workflow tries it as a candidate (the fallback's
+            ``proposed_terms`` is loaded and simulated, never named by the search).
     """
 
     name: str
@@ -137,6 +151,7 @@ class EffectType:
     linear: bool = True
     repeatable: bool = False
     order: int = 0
+    candidate: bool = True
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -168,6 +183,31 @@ def _periodic(unit: str, what: str, largest: float) -> tuple[ParameterSpec, ...]
     return (ParameterSpec('amplitude', unit, f'{what} amplitude', 0.0, largest),
             ParameterSpec('period', 'deg', 'period in the angle', 0.0, 360.0, low_open=True),
             ParameterSpec('phase', 'rad', 'phase at 0 deg', -math.pi, math.pi))
+
+
+def _proposed_parameters() -> tuple[ParameterSpec, ...]:
+    """One coefficient per dictionary term (default 0: absent), then amplitude, period and
+    phase of each periodic family (:mod:`galvo_sysid.model.terms`)."""  # noqa: D205, D209
+    out = [ParameterSpec(t.parameter, t.unit, f'coefficient of {t.expression} on the '
+                         f'{t.side}', -1e12, 1e12, default=0.0) for t in TERMS]
+    for f in PERIODIC_TERMS:
+        largest = 1e3 if f.side == 'current' and not f.times_current else 10.0
+        out += [ParameterSpec(f'{f.prefix}_amplitude', f.unit, f'amplitude of {f.expression} '
+                              f'on the {f.side}', 0.0, largest, default=0.0),
+                ParameterSpec(f'{f.prefix}_period', 'deg', 'its period P in the angle', 0.0,
+                              360.0, low_open=True, default=1.0),
+                ParameterSpec(f'{f.prefix}_phase', 'rad', 'its phase at 0 deg', -math.pi,
+                              math.pi, default=0.0)]
+    return tuple(out)
+
+
+def _proposed(ph: Physics, p: Mapping[str, float]) -> Physics:
+    amplitudes = {f'{f.prefix}_amplitude' for f in PERIODIC_TERMS}
+    present = {f.prefix for f in PERIODIC_TERMS if p[f'{f.prefix}_amplitude']}
+    kept = tuple((k, v) for k, v in p.items()
+                 if (v and k not in amplitudes and not k.endswith(('_period', '_phase'))) or
+                 k.rsplit('_', 1)[0] in present)
+    return replace(ph, terms=kept)
 
 
 def _bandwidth(ph: Physics, p: Mapping[str, float]) -> Physics:
@@ -219,11 +259,17 @@ EFFECTS: dict[str, EffectType] = {e.name: e for e in (
                (ParameterSpec('bandwidth', 'Hz', '-3 dB bandwidth of the amplifier lag', 0.0,
                               1e9, low_open=True, allow_inf=True),),
                _bandwidth, order=-1),
+    EffectType('proposed_terms', "the discrepancy fallback's dictionary terms (a proposal, "
+               'not a named effect)', _proposed_parameters(), _proposed, linear=False,
+               candidate=False),
 )}
 """The registry: every effect type by name."""
 
 EFFECT_NAMES: tuple[str, ...] = tuple(EFFECTS)
 """The effect names (besides ``none``, which the discrepancy workflow reports for no effect)."""
+
+CANDIDATE_NAMES: tuple[str, ...] = tuple(n for n, e in EFFECTS.items() if e.candidate)
+"""The effects the discrepancy workflow tries as candidates (all but ``proposed_terms``)."""
 
 
 @dataclass(frozen=True)
@@ -253,11 +299,13 @@ class Effect:
             raise ConfigurationError(f'{name}: parameters must be a mapping, got '
                                      f'{type(parameters).__name__}')
         expected = kind.parameter_names
-        if set(parameters) != set(expected):
+        required = {p.name for p in kind.parameters if p.default is None}
+        if not required <= set(parameters) <= set(expected):
             raise ConfigurationError(
                 f'effect {name!r} takes parameters {list(expected)}, got '
                 f'{sorted(str(k) for k in parameters)}')
-        values = tuple((p.name, p.check(name, parameters[p.name])) for p in kind.parameters)
+        values = tuple((p.name, p.check(name, parameters.get(p.name, p.default)))
+                       for p in kind.parameters)
         return cls(name=name, parameters=values)
 
     @property
@@ -273,12 +321,17 @@ class Effect:
         """The plant with this effect acting on it."""
         return self.kind.act(physics, self.params())
 
+    def given(self) -> dict[str, float]:
+        """The parameters that differ from their defaults (all of an effect without any)."""
+        defaults = {p.name: p.default for p in self.kind.parameters}
+        return {k: v for k, v in self.parameters if defaults[k] is None or v != defaults[k]}
+
     def to_dict(self) -> dict[str, Any]:
-        """``{'effect': name, 'parameters': {...}}``."""
-        return {'effect': self.name, 'parameters': self.params()}
+        """``{'effect': name, 'parameters': {...}}`` (parameters at their default left out)."""
+        return {'effect': self.name, 'parameters': self.given()}
 
     def __str__(self) -> str:
-        inner = ', '.join(f'{k}={v:.6g}' for k, v in self.parameters)
+        inner = ', '.join(f'{k}={v:.6g}' for k, v in self.given().items())
         return f'{self.name}({inner})'
 
 

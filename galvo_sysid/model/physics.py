@@ -18,7 +18,8 @@ periodic in the rigid-body angle p, ``cogging_amplitude`` sin(2 pi p / ``cogging
 ``cogging_phase``) (:meth:`Physics.cogging`); no friction or cogging torque scales with
 ``gain_ratio``. The encoder reads y + ``encoder_error_amplitude`` sin(2 pi y /
 ``encoder_error_period`` + ``encoder_error_phase``) (:meth:`Physics.reading`): a cyclic error
-of the reading, not a torque.
+of the reading, not a torque. The discrepancy fallback's proposed terms (``terms``) add a
+current (with the cogging's) and an error of the reading.
 
 Its parameters by name (:meth:`Physics.parameters`) are what plant changes act on
 (:mod:`galvo_sysid.model.changes`): the modal names ``k0``, ``k1``.., ``omega_1``..,
@@ -37,6 +38,7 @@ import numpy as np
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model.dynamics import check_sample_period
 from galvo_sysid.model.modal import MAX_MAGNITUDE, parameter_names
+from galvo_sysid.model.terms import term_current, term_reading, term_reading_slope
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray
@@ -87,6 +89,11 @@ class Physics:
         encoder_error_amplitude: Cyclic error of the encoder's reading [deg] (0: none).
         encoder_error_period: Its period in the shaft angle [deg].
         encoder_error_phase: Its phase at 0 deg [rad].
+        terms: The ``proposed_terms`` effect's parameters that act, ``(name, value)``
+            (:mod:`galvo_sysid.model.terms`): an extra current of the rigid body's angle,
+            velocity and acceleration and the DSP's current command, evaluated at each
+            sample's start and held over the sample (:meth:`term_current`), and an error of
+            the encoder's reading (:meth:`reading`). Empty: none.
     """
 
     sample_period: float
@@ -108,6 +115,7 @@ class Physics:
     encoder_error_amplitude: float = 0.0
     encoder_error_period: float = 1.0
     encoder_error_phase: float = 0.0
+    terms: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
         check_sample_period(self.sample_period)
@@ -161,7 +169,36 @@ class Physics:
         """True without Coulomb friction, saturation, cogging and encoder error (the closed
         loop is then linear)."""  # noqa: D205, D209
         return (self.friction_current == 0 and math.isinf(self.current_limit)
-                and self.cogging_amplitude == 0 and self.encoder_error_amplitude == 0)
+                and self.cogging_amplitude == 0 and self.encoder_error_amplitude == 0
+                and not self.terms)
+
+    @property
+    def current_terms(self) -> bool:
+        """Whether proposed terms add a current."""
+        return any(k.startswith('current_') for k, _ in self.terms)
+
+    @property
+    def reading_error(self) -> bool:
+        """Whether the encoder's reading differs from the shaft angle."""
+        return bool(self.encoder_error_amplitude) or any(
+            k.startswith('reading_') for k, _ in self.terms)
+
+    def term_current(self, position: ArrayLike, velocity: ArrayLike, acceleration: ArrayLike,
+                     current: ArrayLike) -> NDArray[np.float64]:
+        """The proposed terms' extra current [A] at the rigid body's angle [deg], velocity
+        [deg/s] and acceleration [deg/s^2] and the DSP's current command [A].
+
+        The simulator and the discrepancy workflow evaluate it at each sample's start (the
+        acceleration: the rigid body's velocity change over the previous sample / T) and hold
+        it over the sample.
+        """  # noqa: D205
+        p = np.asarray(position, dtype=float)
+        shape = np.broadcast(p, np.asarray(velocity), np.asarray(acceleration),
+                             np.asarray(current)).shape
+        out = term_current(dict(self.terms), p, np.asarray(velocity, dtype=float),
+                           np.asarray(acceleration, dtype=float),
+                           np.asarray(current, dtype=float))
+        return np.asarray(np.broadcast_to(out, shape), dtype=np.float64)
 
     @property
     def rigid_damping(self) -> float:
@@ -187,24 +224,27 @@ class Physics:
     def reading(self, angle: ArrayLike) -> NDArray[np.float64]:
         """The encoder's reading of the shaft angle [deg] (its cyclic error added)."""
         y = np.asarray(angle, dtype=float)
-        if self.encoder_error_amplitude == 0:
-            return np.array(y, dtype=np.float64)
-        k = 2 * math.pi / self.encoder_error_period
-        return np.asarray(y + self.encoder_error_amplitude * np.sin(k * y
-                                                                   + self.encoder_error_phase),
-                          dtype=np.float64)
+        out = np.array(y, dtype=np.float64)
+        if self.encoder_error_amplitude:
+            k = 2 * math.pi / self.encoder_error_period
+            out = out + self.encoder_error_amplitude * np.sin(k * y + self.encoder_error_phase)
+        if self.terms:
+            out = out + term_reading(dict(self.terms), y)
+        return np.asarray(out, dtype=np.float64)
 
     def true_angle(self, reading: ArrayLike) -> NDArray[np.float64]:
         """The shaft angle [deg] whose reading is ``reading`` (the inverse of
         :meth:`reading`, by Newton's method: the reading increases with the angle)."""  # noqa: D205, D209
         r = np.asarray(reading, dtype=float)
         y = np.array(r, dtype=np.float64)
-        if self.encoder_error_amplitude == 0:
+        if not self.reading_error:
             return y
         a, ph = self.encoder_error_amplitude, self.encoder_error_phase
         k = 2 * math.pi / self.encoder_error_period
+        terms = dict(self.terms)
         for _ in range(30):
-            step = (y + a * np.sin(k * y + ph) - r) / (1 + a * k * np.cos(k * y + ph))
+            slope = 1 + a * k * np.cos(k * y + ph) + term_reading_slope(terms, y)
+            step = (self.reading(y) - r) / slope
             y = y - step
             if float(np.max(np.abs(step), initial=0.0)) < 1e-13 * (1 + float(
                     np.max(np.abs(r), initial=0.0))):

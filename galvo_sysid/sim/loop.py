@@ -5,7 +5,7 @@ command register (computation delay), the controller state, and, for the nonline
 the exact per-sample update (:meth:`ClosedLoop.exact_move`: the quantiser in the loop, the
 amplifier's current limit evaluated on sub-steps, Coulomb friction as a stick-slip law, the
 cogging torque of the rigid body's angle held over each sample, the encoder's cyclic error
-in the reading).
+in the reading, the discrepancy fallback's proposed terms).
 :class:`FastBlock` holds the Markov parameters of the linear closed loop over one move, so a
 batch of moves is matrix products and FFT convolutions.
 """
@@ -19,6 +19,7 @@ import numpy as np
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model.sampling import ContinuousPlant, sample_plant
+from galvo_sysid.model.terms import term_current, term_reading
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -150,6 +151,13 @@ class ClosedLoop:
         # Encoder cyclic error: the reading of the shaft angle (Physics.reading).
         self.enc = (spec.encoder_error_amplitude, 2 * math.pi / spec.encoder_error_period,
                     spec.encoder_error_phase)
+        # Proposed terms (Physics.term_current, Physics.reading): a current of the rigid
+        # body's angle, velocity, acceleration (its velocity change over the previous sample,
+        # carried from move to move in last_velocity) and the command, held over the sample.
+        self.terms = dict(spec.terms)
+        self.term_current = spec.current_terms
+        self.term_reading = spec.reading_error and bool(spec.terms)
+        self.last_velocity = 0.0
 
     def exact_move(self, z: NDArray[np.float64], r: NDArray[np.float64],
                    ff: NDArray[np.float64], n: NDArray[np.float64], v: NDArray[np.float64],
@@ -175,14 +183,20 @@ class ClosedLoop:
         cog_a, cog_k, cog_ph, half_t = loop.cog
         enc_a, enc_k, enc_ph = loop.enc
         p_i, v_i = loop.p_index, loop.v_index
+        terms, t_current, t_reading = loop.terms, loop.term_current, loop.term_reading
+        v_last, period = loop.last_velocity, 2.0 * half_t
         sin = math.sin
         zk = z.copy()
         floor = math.floor
         for k in range(length):
             out = big @ zk
             y = float(out[nz])
-            if enc_a:
-                y += enc_a * sin(enc_k * y + enc_ph)
+            if enc_a or t_reading:
+                shaft = y
+                if enc_a:
+                    y += enc_a * sin(enc_k * shaft + enc_ph)
+                if t_reading:
+                    y += float(term_reading(terms, shaft))
             meas = y + v[k]
             if q > 0:
                 meas = floor(meas / q + 0.5) * q
@@ -204,10 +218,16 @@ class ClosedLoop:
                 sinc = sin(half) / half if half else 1.0
                 z_next += loop.gd_sum * (cog_a * sin(cog_k * float(zk[p_i]) + half + cog_ph)
                                          * sinc)
+            if t_current:
+                vk = float(zk[v_i])
+                z_next += loop.gd_sum * float(term_current(terms, float(zk[p_i]), vk,
+                                                           (vk - v_last) / period, uk))
+                v_last = vk
             if friction > 0:
                 self._friction(zk, z_next)
             zk = z_next
         z[:] = zk
+        loop.last_velocity = v_last
         return u_rec, y_rec
 
     def _saturation(self, i0: float, u_old: float, u_new: float) -> NDArray[np.float64]:

@@ -343,7 +343,7 @@ class GalvoSimulator:
             exact = cfg.method == 'exact' or not spec.linear
             if exact and cfg.method == 'fast':
                 raise ConfigurationError("method 'fast' cannot simulate friction, saturation, "
-                                         'cogging or an encoder error')
+                                         "cogging, an encoder error or proposed terms")
             # Moves that share this plant (no drift or step in between) run as one batch.
             j = i + 1
             if not exact:

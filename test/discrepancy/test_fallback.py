@@ -17,19 +17,24 @@ import yaml
 from discrepancy_cases import ANGLES, CASES, hidden_effects, measured
 from heldout import Hidden, heldout_moves
 
-from galvo_sysid.discrepancy import Comparison, DiscrepancyResult, find_discrepancy
+from galvo_sysid.discrepancy import Comparison, DiscrepancyResult, MoveSet, find_discrepancy
 from galvo_sysid.discrepancy.fallback import propose
 from galvo_sysid.discrepancy.report import format_result
 from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD
 from galvo_sysid.model import PAPER_MODEL
+from galvo_sysid.model.files import load_model
 
 CUBIC = Hidden.of('cubic_spring', kappa=3e-3)
 
 
 @functools.cache
+def _moves(hidden: Hidden, seed: int = 3) -> MoveSet:
+    return heldout_moves((hidden,), seed, angles=ANGLES, moves_per_angle=20)
+
+
+@functools.cache
 def _workflow(hidden: Hidden, seed: int = 3) -> DiscrepancyResult:
-    moves = heldout_moves((hidden,), seed, angles=ANGLES, moves_per_angle=20)
-    return find_discrepancy(moves, max_effects=1)
+    return find_discrepancy(_moves(hidden, seed), max_effects=1)
 
 
 @pytest.mark.parametrize(('hidden', 'side', 'term', 'coefficient'), [
@@ -76,10 +81,34 @@ def test_the_proposal_in_the_text_json_and_yaml(tmp_path):
     assert prop['share_closed'] == pytest.approx(1 - prop['gap_after'] / prop['gap_before'])
     files = write_report(result, tmp_path)
     assert tmp_path / 'proposal.yaml' in files
-    written = yaml.safe_load((tmp_path / 'proposal.yaml').read_text(encoding='utf-8'))
-    snippet = written['proposal'][0]
-    assert (snippet['term'], snippet['acts_on']) == ('x^3', 'current')
-    assert snippet['coefficient'] == pytest.approx(-3e-3, rel=0.05)
+    text = (tmp_path / 'proposal.yaml').read_text(encoding='utf-8')
+    assert text.startswith('# galvo-sysid discrepancy: a data-driven proposal, not a named '
+                           'effect.')
+    written = yaml.safe_load(text)
+    effect = written['effects'][-1]
+    assert effect['effect'] == 'proposed_terms'
+    assert effect['parameters']['current_x3'] == pytest.approx(-3e-3, rel=0.05)
+    assert load_model(tmp_path / 'proposal.yaml') == result.proposal.model(result.final_model)
+
+
+def test_the_proposal_as_a_model_closes_the_gap(tmp_path):
+    """The proposal's model file, loaded and given back to the workflow with the same
+    moves: the gap shrinks from 49 noise gaps to within the tolerance (1.2 noise gaps, as
+    with the hidden law's own coefficient: the rest is the independent simulator's other
+    discretisation), no effect is named, and the workflow never tries the proposed terms."""
+    from galvo_sysid.discrepancy.report import write_report
+
+    result = _workflow(CUBIC)
+    assert result.verdict == 'unexplained'
+    assert result.proposal is not None
+    write_report(result, tmp_path)
+    model = load_model(tmp_path / 'proposal.yaml')
+    again = find_discrepancy(_moves(CUBIC), model, max_effects=1, fallback=False)
+    assert not again.steps
+    assert again.gap_before < 0.03 * result.gap_after
+    assert again.gap_before < again.tolerance * again.noise_gap < result.gap_after
+    named = {c.effect for r in (*result.rounds, *again.rounds) for c in r}
+    assert 'proposed_terms' not in named
 
 
 def test_a_current_dependent_ripple_gets_its_period_and_phase():

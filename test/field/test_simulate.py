@@ -75,6 +75,7 @@ def test_effect_and_step_reach_the_plant(tmp_path: Path) -> None:
     'cogging_torque:amplitude=0.01,period=0.7,phase=0.3',
     'encoder_cyclic_error:amplitude=1e-3,period=0.5,phase=-1',
     'amplifier_bandwidth:bandwidth=12000',
+    'proposed_terms:current_x3=-0.05,reading_x_absx=1e-3',
 ])
 def test_every_new_effect_can_be_simulated(tmp_path: Path, effect: str) -> None:
     """`galvo-sysid simulate --effect NAME:...` for the effects of issue 14 (the registry's)."""

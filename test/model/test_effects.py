@@ -22,6 +22,8 @@ PARAMS = {
     'cogging_torque': {'amplitude': 0.01, 'period': 0.7, 'phase': 0.3},
     'encoder_cyclic_error': {'amplitude': 1e-3, 'period': 0.5, 'phase': -1.0},
     'amplifier_bandwidth': {'bandwidth': 15e3},
+    'proposed_terms': {'current_x3': -3e-3, 'reading_sin_amplitude': 1e-4,
+                       'reading_sin_period': 0.3},
 }
 
 
@@ -46,6 +48,8 @@ def test_every_effect_acts_as_registered() -> None:
     assert ph.current_limit == 0.7
     assert ph.natural_frequencies[-1] == 3e4
     assert ph.residues[-1] == 1e5
+    assert ph.terms == (('current_x3', -3e-3), ('reading_sin_amplitude', 1e-4),
+                        ('reading_sin_period', 0.3), ('reading_sin_phase', 0.0))
     assert not ph.linear
     items = [e.to_dict() for e in model.effects]
     assert {i['effect'] for i in items} == set(EFFECT_NAMES)
@@ -56,7 +60,7 @@ def test_every_effect_acts_as_registered() -> None:
 def test_linear_flags_of_the_registry() -> None:
     nonlinear = {n for n, e in EFFECTS.items() if not e.linear}
     assert nonlinear == {'coulomb_friction', 'current_saturation', 'cogging_torque',
-                         'encoder_cyclic_error'}
+                         'encoder_cyclic_error', 'proposed_terms'}
     for name, params in PARAMS.items():
         assert PAPER_MODEL.with_effect(name, params).physics().linear == (
             name not in nonlinear)

@@ -21,6 +21,7 @@ from galvo_sysid.model import (
     model_to_yaml,
     save_model,
 )
+from galvo_sysid.model.effects import CANDIDATE_NAMES
 from galvo_sysid.model.files import model_from_dict, model_to_dict, packaged_model_path
 
 RESONANCE = {'natural_frequency': 3e4, 'damping_ratio': 0.02, 'residue': 1e5}
@@ -208,7 +209,8 @@ def test_effect_contract():
     assert EFFECT_NAMES == ('input_delay', 'unmodeled_resonance', 'coulomb_friction',
                             'pivot_stiffness', 'gain_change', 'current_saturation',
                             'viscous_friction', 'cogging_torque', 'encoder_cyclic_error',
-                            'amplifier_bandwidth')
+                            'amplifier_bandwidth', 'proposed_terms')
+    assert EFFECT_NAMES[:-1] == CANDIDATE_NAMES
     e = Effect.create('unmodeled_resonance', {'residue': -1.0, 'natural_frequency': 2.0,
                                               'damping_ratio': 0.1})
     assert [k for k, _ in e.parameters] == ['natural_frequency', 'damping_ratio', 'residue']
