@@ -31,7 +31,11 @@ def _domain_id() -> int:
 
 # Set before any test (and every child process) touches rclpy.
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ.setdefault('ROS_DOMAIN_ID', str(_domain_id()))
+if 'PYTEST_XDIST_WORKER' in os.environ:
+    # not setdefault: a worker inherits the controller's variables, this one included
+    os.environ['ROS_DOMAIN_ID'] = str(_domain_id())
+else:
+    os.environ.setdefault('ROS_DOMAIN_ID', str(_domain_id()))
 os.environ.setdefault('ROS_LOG_DIR', tempfile.mkdtemp(prefix='galvo_sysid_roslog_'))
 
 

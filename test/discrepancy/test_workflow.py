@@ -93,7 +93,7 @@ def test_bad_data_is_refused():
         MoveSet.create(np.zeros((3, 64)), np.zeros((3, 64)), 0.0, sample_period=TAU)
     with pytest.raises(ConfigurationError, match='sampled'):
         Comparison(ok, replace(PAPER_MODEL, sample_period=2 * TAU))
-    with pytest.raises(ConfigurationError, match='unknown effect'):
+    with pytest.raises(ConfigurationError, match='unknown candidate effect'):
         find_discrepancy(ok, effects=['magic'])
     with pytest.raises(ConfigurationError, match='min_improvement'):
         find_discrepancy(ok, min_improvement=1.0)
