@@ -18,7 +18,10 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model.files import model_label
@@ -37,7 +40,10 @@ if TYPE_CHECKING:
     from galvo_sysid.monitor.moves import MoveHalf, Window
     from galvo_sysid.monitor.verdict import DriftVerdict
 
-__all__ = ['SerializedHalf', 'SysidTask', 'WatchdogTask', 'mismatch_message']
+__all__ = ['LATENCY_WINDOWS', 'SerializedHalf', 'SysidTask', 'WatchdogTask', 'mismatch_message']
+
+LATENCY_WINDOWS = 200
+"""Windows the sysid task's latency figures (:meth:`SysidTask.latency_ms`) are taken over."""
 
 
 class SerializedHalf(Protocol):
@@ -97,6 +103,7 @@ class SysidTask:
                                       processes=processes)
         self.halves_received = 0
         self.windows_completed = 0
+        self._latencies: deque[float] = deque(maxlen=LATENCY_WINDOWS)
         self._last_input = time.monotonic()
         self._lock = threading.Lock()
         self.last_mismatch: str | None = None
@@ -172,6 +179,7 @@ class SysidTask:
     def _done(self, outcome: FitOutcome) -> None:
         w = outcome.window
         with self._lock:
+            self._latencies.append(outcome.queued + outcome.fit_time)
             if outcome.result is not None:
                 self.latest_mismatched = False
             elif outcome.mismatch:
@@ -205,7 +213,20 @@ class SysidTask:
                 'windows_mismatched': f.mismatched, 'windows_dropped': f.dropped,
                 'windows_waiting': f.waiting, 'windows_evicted': w.windows_evicted,
                 'windows_expired': w.windows_expired, 'resets': w.resets,
-                'buffered_bytes': w.buffered_bytes}
+                'buffered_bytes': w.buffered_bytes, **self.latency_ms()}
+
+    def latency_ms(self) -> dict[str, int]:
+        """Latency from a window's completion to the end of its fit [ms]: median, 99th
+        percentile and largest over the last :data:`LATENCY_WINDOWS` windows finished (-1 each
+        before the first)."""  # noqa: D205, D209
+        with self._lock:
+            values = np.array(self._latencies, dtype=float)
+        if not values.size:
+            return dict.fromkeys(('latency_ms_median', 'latency_ms_p99', 'latency_ms_max'), -1)
+        median, p99 = np.percentile(values, [50.0, 99.0])
+        return {'latency_ms_median': round(1e3 * float(median)),
+                'latency_ms_p99': round(1e3 * float(p99)),
+                'latency_ms_max': round(1e3 * float(values.max()))}
 
     def health(self, since: Mapping[str, int], *,
                now: Mapping[str, int] | None = None) -> tuple[int, str]:

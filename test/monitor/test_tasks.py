@@ -378,3 +378,23 @@ def test_warnings_beyond_the_rate_are_summed_up_by_reason() -> None:
     assert warnings == ['1 move set aside (id 1; -0.3 deg): NaN or Inf in encoder',
                         '2 more similar message(s) held back in the last second: '
                         '2 x NaN or Inf in encoder']
+
+
+def test_sysid_task_reports_the_latency_of_its_windows() -> None:
+    """Median, 99th percentile and largest time from a window's completion to its fit's end
+    (issue 17: the latency distribution on /diagnostics), over the last 200 windows."""
+    task = SysidTask(lambda w: fake_result(), lambda o: None, warn=lambda _: None)
+    assert task.stats()['latency_ms_p99'] == -1  # nothing finished yet
+    for i, seconds in enumerate([0.010, 0.020, 0.030, 0.040, 1.0]):
+        task._done(FitOutcome(window(i), fake_result(), None, queued=seconds / 2,
+                              fit_time=seconds / 2))
+    stats = task.stats()
+    task.close()
+    assert stats['latency_ms_median'] == 30
+    assert stats['latency_ms_max'] == 1000
+    assert stats['latency_ms_p99'] == round(float(np.percentile([10, 20, 30, 40, 1000], 99)))
+    for i in range(300):  # only the last 200 count
+        task._done(FitOutcome(window(i), fake_result(), None, queued=0.0, fit_time=0.005))
+    assert task.latency_ms() == {'latency_ms_median': 5, 'latency_ms_p99': 5,
+                                 'latency_ms_max': 5}
+
