@@ -35,7 +35,6 @@ import datetime
 import statistics
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -89,11 +88,8 @@ def run(profile: ProfileConfig, amplitude: float, seeds: int) -> Run:
                encoders=encoders, excitation=statistics.median(exc))
 
 
-def _loadavg() -> str:
-    try:
-        return Path('/proc/loadavg').read_text(encoding='utf-8').strip()
-    except OSError:
-        return 'unknown'
+def _load() -> str:
+    return ', '.join(f'{x:.2f}' for x in os.getloadavg())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -108,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f'dither gain at mode 3: paper scanner, 1 psi, windows of 100 moves, refined fit, '
           f'{args.seeds} seeds')
     print(f'started {datetime.datetime.now().isoformat(timespec="seconds")}, load average '
-          f'{_loadavg()}')
+          f'{_load()}')
     conditions = {'default': ProfileConfig(),
                   'weak': ProfileConfig(shape='minimum-jerk',
                                         min_duration=args.weak_samples * TAU)}
@@ -134,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
           'added position: rms(encoder with - without the dither), same noise seeds')
     print(f'finished in {time.perf_counter() - start:.0f} s, '
           f'{datetime.datetime.now().isoformat(timespec="seconds")}, load average '
-          f'{_loadavg()}')
+          f'{_load()}')
     return 0
 
 
