@@ -280,3 +280,14 @@ def wait_new_subscribers(graph: Graph, topics: Iterable[str], old: dict[str, set
     names = list(topics)
     graph.spin_until(lambda: all(subscriber_ids(graph, t) - old.get(t, set()) for t in names),
                      timeout, f'new subscribers on {names}')
+
+
+def together(venv_bin: Path, *calls: Sequence[str]) -> list[subprocess.CompletedProcess[str]]:
+    """Run ``galvo-sysid`` commands side by side; their results in order."""
+    procs = [subprocess.Popen([str(venv_bin / 'galvo-sysid'), *call], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True) for call in calls]
+    out = []
+    for call, proc in zip(calls, procs, strict=True):
+        stdout, stderr = proc.communicate(timeout=90)
+        out.append(subprocess.CompletedProcess(list(call), proc.returncode, stdout, stderr))
+    return out

@@ -7,33 +7,20 @@ values are checked through the test's own parameter client, not through the tool
 
 from __future__ import annotations
 
-import subprocess
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rclpy.parameter import Parameter
+from ros_graph import together
 
 from galvo_sysid.field.parameter_file import load_node_parameters
 from galvo_sysid.monitor.parameters import SYSID_PARAMETERS, ParamSpec
 from galvo_sysid.schema import load_yaml
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
-
     from ros_graph import Graph
 
 WAIT = ('--timeout', '20')  # generous: the machine may be loaded
-
-
-def together(venv_bin: Path, *calls: Sequence[str]) -> list[subprocess.CompletedProcess[str]]:
-    """Run ``galvo-sysid`` commands side by side; their results in order."""
-    procs = [subprocess.Popen([str(venv_bin / 'galvo-sysid'), *call], stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True) for call in calls]
-    out = []
-    for call, proc in zip(calls, procs, strict=True):
-        stdout, stderr = proc.communicate(timeout=90)
-        out.append(subprocess.CompletedProcess(list(call), proc.returncode, stdout, stderr))
-    return out
 
 
 def spec(name: str) -> ParamSpec:

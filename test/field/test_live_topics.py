@@ -9,17 +9,17 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
 from typing import TYPE_CHECKING
 
 import pytest
 import yaml
+from ros_graph import together
 
 from galvo_sysid.interfaces.topics import MOVE_SAMPLES
 from galvo_sysid.model import load_model
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator, Sequence
+    from collections.abc import Iterator
     from pathlib import Path
 
     from ros_graph import Proc
@@ -47,17 +47,6 @@ def venv_bin_module() -> Path:
     from pathlib import Path
 
     return Path(sys.executable).parent
-
-
-def together(venv_bin: Path, *calls: Sequence[str]) -> list[subprocess.CompletedProcess[str]]:
-    """Run ``galvo-sysid`` commands side by side; their results in order."""
-    procs = [subprocess.Popen([str(venv_bin / 'galvo-sysid'), *call], stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True) for call in calls]
-    out = []
-    for call, proc in zip(calls, procs, strict=True):
-        stdout, stderr = proc.communicate(timeout=90)
-        out.append(subprocess.CompletedProcess(list(call), proc.returncode, stdout, stderr))
-    return out
 
 
 def test_topic_list_puts_the_galvo_topics_first(driver: Proc, venv_bin: Path) -> None:
