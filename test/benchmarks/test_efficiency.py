@@ -22,8 +22,8 @@ _SPEC.loader.exec_module(eff)
 
 def _window(errors: dict[str, float], bounds: dict[str, float], z: dict[str, float],
             resolved: tuple[bool, ...] = (True,)):
-    return eff.Window(errors=errors, bounds=bounds, z=z, resolved=resolved, seconds=0.0,
-                      excitation=math.nan)
+    return eff.Window(errors=errors, bounds=bounds, z=z, reported=bounds, resolved=resolved,
+                      seconds=0.0, excitation=math.nan)
 
 
 def test_the_family_builds_by_its_rules() -> None:
@@ -60,6 +60,7 @@ def test_parameter_stats_arithmetic() -> None:
     assert s.bias == 0.0
     assert s.worst == 1.5
     assert s.calibration == pytest.approx(math.sqrt(5))
+    assert s.reported == 1.0
     assert (s.resolved, s.counted) == (4, True)
     assert s.failures() == ['median', 'calibration']
     k1 = eff.parameter_stats('k1', wins)      # mode 1 unresolved in one window
