@@ -1,0 +1,80 @@
+"""Tests of benchmarks/efficiency.py: its family of conditions and its arithmetic (no fits)."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+
+import pytest
+
+from galvo_sysid.model import PAPER_MODEL, PSI
+
+_PATH = Path(__file__).resolve().parents[2] / 'benchmarks' / 'efficiency.py'
+_SPEC = importlib.util.spec_from_file_location('benchmark_efficiency', _PATH)
+assert _SPEC is not None
+assert _SPEC.loader is not None
+eff = importlib.util.module_from_spec(_SPEC)
+sys.modules['benchmark_efficiency'] = eff
+_SPEC.loader.exec_module(eff)
+
+
+def _window(errors: dict[str, float], bounds: dict[str, float], z: dict[str, float],
+            resolved: tuple[bool, ...] = (True,)):
+    return eff.Window(errors=errors, bounds=bounds, z=z, reported=bounds, resolved=resolved,
+                      seconds=0.0, excitation=math.nan)
+
+
+def test_the_family_builds_by_its_rules() -> None:
+    family = eff.conditions((2,))
+    names = [c.name for c in family]
+    assert len(names) == len(set(names)) == 12
+    assert names[0] == 'default'
+    assert names[-1] == 'scanner-2'
+    by_name = {c.name: c for c in family}
+    weak = by_name['weak'].config
+    assert (weak.profile.shape, weak.profile.min_duration) == ('minimum-jerk', pytest.approx(
+        80 * PAPER_MODEL.sample_period))
+    assert by_name['weak+dither'].config.dither.amplitude == 0.01
+    assert by_name['weak+dither'].config.dither.frequencies == (
+        PAPER_MODEL.modal.natural_frequencies[2],)
+    assert by_name['no-notch-600Hz'].config.controller.notch_frequencies == ()
+    step = by_name['default'].config.encoder_resolution
+    assert by_name['encoder-3step'].config.measurement_noise_std == pytest.approx(3 * step)
+    assert all(c.angle == PSI for c in family[:-1])
+    assert by_name['scanner-2'].truth is by_name['scanner-2'].config.plant
+    # every condition has a stable controller and a move that fits (describe designs both)
+    assert 'samples' in eff.describe(by_name['no-notch-600Hz'])
+
+
+def test_parameter_stats_arithmetic() -> None:
+    # errors +-1, +-3 (relative), bound 2 everywhere, reported std 1 (z = error)
+    wins = [_window({'k0': e, 'k1': e}, {'k0': 2.0, 'k1': 2.0}, {'k0': e, 'k1': e},
+                    resolved=(r,))
+            for e, r in ((1.0, True), (-1.0, True), (3.0, False), (-3.0, True))]
+    s = eff.parameter_stats('k0', wins)
+    assert s.median_error == 2.0
+    assert s.limit == pytest.approx(1.25 * 0.674 * 2)
+    assert s.efficiency == pytest.approx(math.sqrt(5) / 2)
+    assert s.bias == 0.0
+    assert s.worst == 1.5
+    assert s.calibration == pytest.approx(math.sqrt(5))
+    assert s.reported == 1.0
+    assert (s.resolved, s.counted) == (4, True)
+    assert s.failures() == ['median', 'calibration']
+    k1 = eff.parameter_stats('k1', wins)      # mode 1 unresolved in one window
+    assert (k1.resolved, k1.counted, k1.failures()) == (3, False, [])
+    assert k1.calibration == pytest.approx(math.sqrt((1 + 1 + 9) / 3))
+
+
+def test_an_efficient_estimator_passes() -> None:
+    s = eff.parameter_stats('k0', [_window({'k0': e}, {'k0': 1.0}, {'k0': e})
+                                   for e in (0.5, -0.6, 1.2, -1.3, 0.1, 1.0)])
+    assert s.failures() == []
+
+
+def test_the_false_fail_rate_falls_with_the_seeds() -> None:
+    few, many = eff.false_fail_rate(6, draws=4000), eff.false_fail_rate(60, draws=4000)
+    assert 0.3 < few < 0.9
+    assert many < few / 3
