@@ -10,6 +10,12 @@ what the code costs, the median what a busy machine gives). Also printed: how th
 with the number of windows (bags of 1, 2, 5, 10 and 19 angles) and the process start alone
 (a bag too short for any window).
 
+Last, one paired run on the 19-angle bag (the runs interleaved, so a busy machine slows all
+alike): the refined method, ``--method paper-A``, and decoding the bag alone (a fresh process
+that reads and pairs every message exactly as ``identify`` does, no fit). Their ratios
+(refined / paper-A, paper-A / decoding) say how the code compares with itself, which machines
+of this kind reproduce better than absolute times (issue 17).
+
 Usage: ``.venv/bin/python benchmarks/offline_speed.py [--repeat 3] [--jobs N]``
 """
 
@@ -29,6 +35,37 @@ from galvo_sysid.field.simulate import simulate_bag
 from galvo_sysid.model import PAPER_ANGLES
 
 CLI = str(Path(sys.executable).parent / 'galvo-sysid')
+
+DECODE = """
+import sys
+from galvo_sysid.field.bags.reader import BagReader
+from galvo_sysid.model import PAPER_MODEL
+from galvo_sysid.monitor.pairing import MoveWindower
+with BagReader(sys.argv[1]) as bag:
+    pairer = MoveWindower(window_size=100, sample_period=PAPER_MODEL.sample_period)
+    windows = sum(len(done) for _, done, _ in bag.feed(pairer))
+print(windows)
+"""
+"""Decoding alone: every message read, decoded and paired into windows, nothing fitted."""
+
+
+def paired(bag: Path, *, repeat: int, jobs: int | None) -> dict[str, list[float]]:
+    """Wall times of refined, paper-A and decoding-only processes, interleaved per repeat."""
+    extra = ['--jobs', str(jobs)] if jobs is not None else []
+    commands = {
+        'refined': [CLI, 'identify', str(bag), '--json', *extra],
+        'paper-A': [CLI, 'identify', str(bag), '--json', '--method', 'paper-A', *extra],
+        'decoding only': [sys.executable, '-c', DECODE, str(bag)],
+    }
+    times: dict[str, list[float]] = {name: [] for name in commands}
+    for _ in range(repeat):
+        for name, args in commands.items():
+            start = time.perf_counter()
+            proc = subprocess.run(args, capture_output=True, text=True, check=False)
+            times[name].append(time.perf_counter() - start)
+            if proc.returncode != 0:
+                raise SystemExit(f'{name} failed: {proc.stderr.strip()}')
+    return times
 
 
 def timed_identify(bag: Path, *, repeat: int,
@@ -96,7 +133,19 @@ def main() -> int:
         _, _, full, full_median = rows[-1]
         print(f'19 angles x 200 moves: {full:.2f} s best, {full_median:.2f} s median for '
               f'23.0 s of scanner time = {23.03 / full:.1f}x / {23.03 / full_median:.1f}x '
-              f'real time (target: >= 10x)')
+              f'real time (target: >= 20x)')
+        times = paired(Path(tmp) / 'a19', repeat=args.repeat, jobs=args.jobs)
+        load = ', '.join(f'{x:.1f}' for x in os.getloadavg())
+        print(f'\npaired run on the 19-angle bag ({args.repeat} interleaved repeats; load '
+              f'average {load} at the end):\n')
+        print(f'{"process":<14} {"best [s]":>9} {"median [s]":>10} {"x real (best)":>13}')
+        best = {name: min(t) for name, t in times.items()}
+        for name, t in times.items():
+            print(f'{name:<14} {min(t):>9.2f} {statistics.median(t):>10.2f} '
+                  f'{23.03 / min(t):>13.1f}')
+        print(f'\nrefined / paper-A = {best["refined"] / best["paper-A"]:.2f} (target <= 1.3); '
+              f'paper-A / decoding only = {best["paper-A"] / best["decoding only"]:.2f} '
+              f'(target <= 2)')
     return 0
 
 

@@ -345,8 +345,11 @@ class BagReader(BagFile):
                     max_samples: int | None = None) -> Iterator[MoveHalf | SetAside]:
         """Yield each ``MoveSamples`` message as a :class:`~galvo_sysid.monitor.moves.MoveHalf`.
 
-        A message that cannot be decoded or converted is yielded as :class:`SetAside`
-        instead; reading goes on. With ``max_samples``, a record longer than that is refused
+        A message in plain CDR (what rosbag2 records) is read by
+        :func:`~galvo_sysid.interfaces.messages.read_move_samples`, its samples straight into
+        an array (the values rosbags' deserializer gives, without building a message); any
+        other by rosbags. A message that cannot be decoded or converted is yielded as
+        :class:`SetAside` instead; reading goes on. With ``max_samples``, a record longer than that is refused
         before its samples are decoded (its length is read from the serialized bytes): a
         :class:`SetAside` carrying the record's fields.
 
@@ -360,17 +363,19 @@ class BagReader(BagFile):
         current, encoder = self.galvo_topics(namespace=namespace)
         signals = {current: 'current', encoder: 'encoder'}
         for raw in self.raw_messages([current, encoder]):
-            if max_samples is not None:
-                try:
-                    head = read_move_samples(raw.data)
-                except GalvoSysidError:
-                    head = None  # not plain CDR: decoded below, or set aside with the reason
-                if head is not None and head.samples > max_samples:
-                    signal = signals[raw.topic]
+            signal = signals[raw.topic]
+            try:
+                head = read_move_samples(raw.data)
+            except GalvoSysidError:
+                head = None  # not plain CDR: decoded below, or set aside with the reason
+            if head is not None:  # plain CDR: its samples straight into an array
+                if max_samples is not None and head.samples > max_samples:
                     yield SetAside(raw.topic, raw.timestamp * 1e-9,
                                    too_long(signal, head.samples, max_samples),
                                    half=head.header_half(signal))
-                    continue
+                else:
+                    yield head.half(signal)
+                continue
             try:
                 msg = self.deserialize(raw)
                 half = move_half_from_msg(msg, signal=signals[raw.topic])

@@ -106,6 +106,7 @@ class Regressors:
         self.uf = np.asarray(np.diff(d1, axis=-1, prepend=0.0 * d1[..., :1]), dtype=np.float64)
         self.uf_hat = sp_fft.rfft(self.uf, self.nfft, axis=-1)
         self._lag_cache: tuple[float, NDArray[np.float64]] | None = None
+        self._taps_cache: tuple[NDArray[np.float64], NDArray[np.complex128]] | None = None
         # Fixed FIR parts of the rigid body (double and single integrator, see rigid()).
         f = fraction
         t = sample_period
@@ -120,6 +121,23 @@ class Regressors:
         prod = hh * self.uf_hat if self.uf_hat.ndim == 1 else hh[:, None, :] * self.uf_hat[None]
         return np.asarray(sp_fft.irfft(prod, self.nfft, axis=-1)[..., : self.n],
                           dtype=np.float64)
+
+    def convolve_filtered(self, h: NDArray[np.float64], taps: NDArray[np.float64]) -> tuple[
+            NDArray[np.float64], NDArray[np.float64]]:
+        """:meth:`convolve` of h (m, N) for one record, and the same filtered by the FIR
+        ``taps``: both (m, N), one transform of h.
+
+        The filtered responses are exact from sample ``taps.size - 1`` on (earlier samples
+        may hold the wrap-around of the circular convolution).
+        """  # noqa: D205
+        if self.uf_hat.ndim != 1:
+            raise ConfigurationError('convolve_filtered needs a single input record')
+        if self._taps_cache is None or self._taps_cache[0] is not taps:
+            self._taps_cache = (taps, sp_fft.rfft(taps, self.nfft))
+        prod = sp_fft.rfft(h, self.nfft, axis=-1) * self.uf_hat
+        both = sp_fft.irfft(np.stack([prod, prod * self._taps_cache[1]]), self.nfft,
+                            axis=-1)[..., : self.n]
+        return np.asarray(both[0], dtype=np.float64), np.asarray(both[1], dtype=np.float64)
 
     def _pulse(self, p: NDArray[np.complex128]) -> tuple[NDArray[np.complex128],
                                                           NDArray[np.complex128]]:

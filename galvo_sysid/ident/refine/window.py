@@ -29,6 +29,7 @@ from galvo_sysid.ident.refine.regressors import (
     powers,
     second_difference,
 )
+from galvo_sysid.ident.refine.whitener import Whitener, noise_whitener
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -95,127 +96,6 @@ def window_records(windows: Sequence[tuple[ArrayLike, ArrayLike]], min_moves: in
     return out
 
 
-def _taper(n: int) -> NDArray[np.float64]:
-    """Hann taper scaled to unit mean square: autocovariances without the leakage of a bare
-    record (its sidelobes fill a spectral valley tens of dB deep, e.g. the filtered encoder
-    noise's low frequencies, where the rigid body's information lies)."""  # noqa: D205, D209
-    w = np.hanning(n + 2)[1:-1]
-    return np.asarray(w / np.sqrt(np.mean(w * w)), dtype=np.float64)
-
-
-class Whitener:
-    """A causal whitening map over a record: an exact head of rows, then an FIR filter.
-
-    Made from a stationary noise's autocovariance (:meth:`from_autocovariance`), row k is
-    the prediction error of sample k from all the samples before it (order k), divided by
-    its standard deviation: the rows of L^-1 for the Cholesky factor L of the Toeplitz
-    covariance. From row ``order`` on the rows are all the order-``order`` prediction-error
-    filter, applied as an FIR (by FFT); the first rows are exact too, so a record's start
-    is whitened as well as its middle. Two whiteners compose (:meth:`then`) into one.
-
-    Args:
-        head: (h, h) lower-triangular rows of the first h samples.
-        taps: FIR filter of the rows from h on (length <= h + 1).
-    """
-
-    def __init__(self, head: NDArray[np.float64], taps: NDArray[np.float64]) -> None:
-        self.head = np.asarray(head, dtype=float)
-        self.filter = np.asarray(taps, dtype=float)
-        self._spectra: dict[int, NDArray[np.complex128]] = {}
-
-    @classmethod
-    def from_autocovariance(cls, autocovariance: NDArray[np.float64]) -> Whitener:
-        """The exact whitener of a stationary noise with autocovariance r[0..order]."""
-        r = np.asarray(autocovariance, dtype=float)
-        order = r.size - 1
-        head = np.zeros((order, order))
-        a = np.array([1.0])
-        err = float(r[0])
-        for k in range(order + 1):
-            if k:  # Levinson-Durbin: the order-k predictor from the order-(k - 1) one
-                acc = float(r[k] + a[1:] @ r[k - 1: 0: -1]) if k > 1 else float(r[1])
-                refl = -acc / err
-                a = np.concatenate([a, [0.0]])
-                a = a + refl * a[::-1]
-                err *= max(1.0 - refl * refl, 1e-12)
-            if k < order:
-                head[k, : k + 1] = a[::-1] / math.sqrt(err)
-        return cls(head, a / math.sqrt(err))
-
-    def then(self, outer: Whitener) -> Whitener:
-        """The map ``outer`` after this one, as one whitener."""
-        size = self.head.shape[0] + outer.head.shape[0]
-        head = outer.apply(self.apply(np.eye(size)))
-        return Whitener(np.tril(head), np.convolve(outer.filter, self.filter))
-
-    def apply(self, arr: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
-        """Whiten ``arr`` along ``axis`` (its rows are the record's samples from the first)."""
-        moved = np.moveaxis(np.asarray(arr, dtype=float), axis, 0)
-        n = moved.shape[0]
-        size = _fft_size(n + self.filter.size - 1)
-        spectrum = self._spectra.get(size)
-        if spectrum is None:
-            spectrum = self._spectra[size] = np.fft.rfft(self.filter, size)
-        shape = (-1,) + (1,) * (moved.ndim - 1)
-        out = np.fft.irfft(np.fft.rfft(moved, size, axis=0) * spectrum.reshape(shape), size,
-                           axis=0)[:n]
-        p = min(self.head.shape[0], n)
-        out[:p] = np.tensordot(self.head[:p, :p], moved[:p], axes=1)
-        return np.moveaxis(out, 0, axis)
-
-
-def _fft_size(n: int) -> int:
-    """The smallest 2^a 3^b 5^c >= n (a fast FFT length)."""
-    best = 1 << (n - 1).bit_length()
-    p5 = 1
-    while p5 < best:
-        p35 = p5
-        while p35 < best:
-            size = p35 * (1 << max(0, (-(-n // p35) - 1).bit_length()))
-            best = min(best, size)
-            p35 *= 3
-        p5 *= 5
-    return best
-
-
-def _autocovariance(dev: NDArray[np.float64], order: int) -> NDArray[np.float64]:
-    """Sum over the moves (rows) of each lag's products, lags 0..order (one FFT pass)."""
-    n = dev.shape[1]
-    size = _fft_size(n + order)  # no wrap-around for the lags wanted
-    f = np.fft.rfft(dev, size, axis=1)
-    power = np.sum(f.real * f.real + f.imag * f.imag, axis=0)
-    return np.asarray(np.fft.irfft(power, size)[: order + 1], dtype=np.float64)
-
-
-def _normalised(r: NDArray[np.float64]) -> NDArray[np.float64]:
-    r = r / r[0]
-    r[1:] *= 1.0 - 1e-9 * np.arange(1, r.size) / (r.size - 1)  # stays positive definite
-    return r
-
-
-def noise_whitener(dev: NDArray[np.float64], order: int, scale: float) -> Whitener | None:
-    """The :class:`Whitener` of the per-move noise ``dev`` (M, rows), or None without noise.
-
-    Two passes (prewhitening, as in spectral estimation): the first whitener comes from the
-    autocovariance of the Hann-tapered records (the taper keeps the dynamic range: see
-    :func:`_taper`), which flattens the spectrum but blurs its sharp peaks (the resonances
-    the current noise rings); the second from the bare autocovariance of what the first
-    leaves, nearly white, so neither leakage nor the taper's blur matters. Both up to lag
-    ``order``, averaged over the moves; the map is the second after the first.
-    """
-    n = dev.shape[1]
-    order = max(1, min(order, n // 2))
-    r = _autocovariance(dev * _taper(n), order)
-    if not r[0] > scale * scale * 1e-20 * dev.size:
-        return None
-    first = Whitener.from_autocovariance(_normalised(r))
-    rest = first.apply(dev, axis=1)
-    r2 = _autocovariance(rest, order)
-    if not r2[0] > 0:
-        return first
-    return first.then(Whitener.from_autocovariance(_normalised(r2)))
-
-
 class WindowProblem:
     """A window's averaged moves, its columns and its moves' scatter (see the module docs).
 
@@ -251,6 +131,7 @@ class WindowProblem:
         """Use a prewhitening map (a :class:`Whitener`) on data and columns, or none."""
         self.whiten = a
         self.yf = self.apply_whitening(self.yf_raw)
+        self._columns_cache: dict[bool, tuple[bytes, NDArray[np.float64]]] = {}
 
     def apply_whitening(self, arr: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
         """Whiten ``arr`` along the row ``axis`` (an invertible lower-triangular map, so no row
@@ -265,8 +146,24 @@ class WindowProblem:
         """Regressor matrix (rows, n_linear).
 
         Columns: rigid body, modes, two free-response columns per mode, offset, and the
-        amplifier lag's free response.
+        amplifier lag's free response. The last matrix of each kind (whitened or not) is
+        kept and given again for the same parameters (read-only: the fit, its scans and its
+        profiles ask for the same point several times).
         """
+        key = np.concatenate([np.asarray(omega, dtype=float), np.asarray(zeta, dtype=float),
+                              [lag]]).tobytes()
+        cached = self._columns_cache.get(whitened)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        phi = self._columns(omega, zeta, lag)
+        if whitened:
+            phi = self.apply_whitening(phi)
+        phi.flags.writeable = False
+        self._columns_cache[whitened] = (key, phi)
+        return phi
+
+    def _columns(self, omega: Floats, zeta: Floats, lag: float) -> NDArray[np.float64]:
+        """:meth:`columns` unwhitened, computed."""
         n = self.n_modes
         _, e = powers(omega, zeta, self.n, self.t)
         phi = np.empty((self.k.size, self.n_linear))
@@ -275,7 +172,7 @@ class WindowProblem:
                                                   first=self.first).T
         phi[:, -2] = 1.0
         phi[:, -1] = self.lag_free(lag)
-        return self.apply_whitening(phi) if whitened else phi
+        return phi
 
     def lag_free(self, lag: float) -> NDArray[np.float64]:
         """Free response of the lag state from the first row on (a unit impulse without lag)."""
@@ -297,13 +194,21 @@ class WindowProblem:
         w_p = np.concatenate([omega * math.exp(h), omega])
         z_p = np.concatenate([zeta, zeta * math.exp(h)])
         _, e = powers(w_p, z_p, self.n, self.t)
-        forced = self.regs.convolve(self.regs.mode_impulses(w_p, z_p, lag, e))[:, self.first:]
+        impulses = self.regs.mode_impulses(w_p, z_p, lag, e)
+        step = h * self.t
+        if lag_free:  # the rigid body and the modes at lag + step, in the same batch
+            h_lag = self.regs.lag_impulse(lag + step)
+            impulses = np.concatenate([
+                impulses, h_lag[None, :],
+                self.regs.mode_impulses(omega, zeta, lag + step, powers(omega, zeta, self.n,
+                                                                        self.t)[1], h_lag)])
+        responses = self.regs.convolve(impulses)
         free = free_responses(w_p, z_p, self.n, self.t, e, first=self.first)
-        blocks = [forced.T, free.T]
+        blocks = [responses[: 2 * n, self.first:].T, free.T]
         if lag_free:
-            step = h * self.t
-            blocks += [self.regs.all(omega, zeta, lag + step)[:, self.first:].T,
-                       self.lag_free(lag + step)[:, None]]
+            lagged = responses[2 * n:]
+            lagged[0] = self.regs.rigid(lag + step, lagged[0])
+            blocks += [lagged[:, self.first:].T, self.lag_free(lag + step)[:, None]]
         new = self.apply_whitening(np.hstack(blocks))
         out: list[tuple[NDArray[np.intp], NDArray[np.float64]]] = []
         for j in range(2 * n):
@@ -319,12 +224,36 @@ class WindowProblem:
     # -- scans -----------------------------------------------------------------------------
     def _candidates(self, lag: float, w_c: NDArray[np.float64],
                     z_c: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Whitened (forced, free cos, free sin) columns of candidate modes: (m, rows, 3)."""
+        """Whitened (forced, free cos, free sin) columns of candidate modes: (m, rows, 3).
+
+        With a whitener, the rows past its head come from one transform per candidate (the
+        filter folded into the convolution) and, for the free responses, in closed form
+        (:meth:`Whitener.exponential_tail`); the head rows from the head. The same numbers as
+        whitening the columns (to rounding), at a third of the transforms.
+        """
         _, e = powers(w_c, z_c, self.n, self.t)
-        forced = self.regs.convolve(self.regs.mode_impulses(w_c, z_c, lag, e))[:, self.first:]
-        free = free_responses(w_c, z_c, self.n, self.t, e, first=self.first)
-        return self.apply_whitening(np.stack([forced, free[0::2], free[1::2]], axis=-1),
-                                    axis=1)
+        h = self.regs.mode_impulses(w_c, z_c, lag, e)
+        first, rows = self.first, self.k.size
+        wh = self.whiten
+        if wh is None or not wh.filter.size - 1 <= wh.order < rows:
+            forced = self.regs.convolve(h)[:, first:]
+            free = free_responses(w_c, z_c, self.n, self.t, e, first=first)
+            return self.apply_whitening(np.stack([forced, free[0::2], free[1::2]], axis=-1),
+                                        axis=1)
+        p = wh.order
+        forced, filtered = self.regs.convolve_filtered(h, wh.filter)
+        m = h.shape[0]
+        out = np.empty((m, rows, 3))
+        head = np.empty((p, m, 3))  # the head's rows as one product
+        head[:, :, 0] = forced[:, first: first + p].T
+        head[:, :, 1] = e[:, first: first + p].real.T
+        head[:, :, 2] = e[:, first: first + p].imag.T
+        out[:, :p] = np.moveaxis((wh.head @ head.reshape(p, -1)).reshape(p, m, 3), 0, 1)
+        out[:, p:, 0] = filtered[:, first + p:]
+        tail = wh.exponential_tail(e, first, rows)
+        out[:, p:, 1] = tail.real
+        out[:, p:, 2] = tail.imag
+        return out
 
     @staticmethod
     def _gains(others: NDArray[np.float64], y: NDArray[np.float64],

@@ -1,0 +1,163 @@
+"""The noise model of the refined fit: a causal whitening map made from the moves' scatter.
+
+:class:`Whitener` is the exact prediction-error map of a stationary noise (an exact head of
+rows, then an FIR filter); :func:`noise_whitener` makes one from a window's per-move noise
+in two passes (see there). Besides whitening any columns (:meth:`Whitener.apply`), a whitener
+gives the whitened tail of a decaying exponential in closed form
+(:meth:`Whitener.exponential_tail`): the free-response columns of many candidate modes are
+whitened without a transform each.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
+__all__ = ['Whitener', 'noise_whitener']
+
+
+def _taper(n: int) -> NDArray[np.float64]:
+    """Hann taper scaled to unit mean square: autocovariances without the leakage of a bare
+    record (its sidelobes fill a spectral valley tens of dB deep, e.g. the filtered encoder
+    noise's low frequencies, where the rigid body's information lies)."""  # noqa: D205, D209
+    w = np.hanning(n + 2)[1:-1]
+    return np.asarray(w / np.sqrt(np.mean(w * w)), dtype=np.float64)
+
+
+class Whitener:
+    """A causal whitening map over a record: an exact head of rows, then an FIR filter.
+
+    Made from a stationary noise's autocovariance (:meth:`from_autocovariance`), row k is
+    the prediction error of sample k from all the samples before it (order k), divided by
+    its standard deviation: the rows of L^-1 for the Cholesky factor L of the Toeplitz
+    covariance. From row ``order`` on the rows are all the order-``order`` prediction-error
+    filter, applied as an FIR (by FFT); the first rows are exact too, so a record's start
+    is whitened as well as its middle. Two whiteners compose (:meth:`then`) into one.
+
+    Args:
+        head: (h, h) lower-triangular rows of the first h samples.
+        taps: FIR filter of the rows from h on (length <= h + 1).
+    """
+
+    def __init__(self, head: NDArray[np.float64], taps: NDArray[np.float64]) -> None:
+        self.head = np.asarray(head, dtype=float)
+        self.filter = np.asarray(taps, dtype=float)
+        self._spectra: dict[int, NDArray[np.complex128]] = {}
+
+    @classmethod
+    def from_autocovariance(cls, autocovariance: NDArray[np.float64]) -> Whitener:
+        """The exact whitener of a stationary noise with autocovariance r[0..order]."""
+        r = np.asarray(autocovariance, dtype=float)
+        order = r.size - 1
+        head = np.zeros((order, order))
+        a = np.array([1.0])
+        err = float(r[0])
+        for k in range(order + 1):
+            if k:  # Levinson-Durbin: the order-k predictor from the order-(k - 1) one
+                acc = float(r[k] + a[1:] @ r[k - 1: 0: -1]) if k > 1 else float(r[1])
+                refl = -acc / err
+                a = np.concatenate([a, [0.0]])
+                a = a + refl * a[::-1]
+                err *= max(1.0 - refl * refl, 1e-12)
+            if k < order:
+                head[k, : k + 1] = a[::-1] / math.sqrt(err)
+        return cls(head, a / math.sqrt(err))
+
+    def then(self, outer: Whitener) -> Whitener:
+        """The map ``outer`` after this one, as one whitener."""
+        size = self.head.shape[0] + outer.head.shape[0]
+        head = outer.apply(self.apply(np.eye(size)))
+        return Whitener(np.tril(head), np.convolve(outer.filter, self.filter))
+
+    @property
+    def order(self) -> int:
+        """Rows of the exact head (the FIR filter applies from this row on)."""
+        return int(self.head.shape[0])
+
+    def exponential_tail(self, e: NDArray[np.complex128], start: int,
+                         rows: int) -> NDArray[np.complex128]:
+        """Whitened rows ``order .. rows-1`` of the records ``lambda_i^(start + k)``, k >= 0.
+
+        ``e[i, k] = lambda_i^k`` (k = 0 .. at least ``start + rows - 1``). The FIR filter
+        a maps a power of lambda to itself times ``sum_j a_j lambda^-j``, so the rows past
+        the head are ``lambda^(start + k - L) sum_j a_j lambda^(L - j)`` (L = the filter's
+        order; every power non-negative): what :meth:`apply` gives those rows, without a
+        transform. Needs ``L <= order < rows``.
+        """
+        p = self.order
+        lags = self.filter.size - 1
+        poly = e[:, lags::-1] @ self.filter
+        return np.asarray(poly[:, None] * e[:, start + p - lags: start + rows - lags],
+                          dtype=np.complex128)
+
+    def apply(self, arr: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
+        """Whiten ``arr`` along ``axis`` (its rows are the record's samples from the first)."""
+        moved = np.moveaxis(np.asarray(arr, dtype=float), axis, 0)
+        n = moved.shape[0]
+        size = _fft_size(n + self.filter.size - 1)
+        spectrum = self._spectra.get(size)
+        if spectrum is None:
+            spectrum = self._spectra[size] = np.fft.rfft(self.filter, size)
+        shape = (-1,) + (1,) * (moved.ndim - 1)
+        out = np.fft.irfft(np.fft.rfft(moved, size, axis=0) * spectrum.reshape(shape), size,
+                           axis=0)[:n]
+        p = min(self.head.shape[0], n)
+        out[:p] = np.tensordot(self.head[:p, :p], moved[:p], axes=1)
+        return np.moveaxis(out, 0, axis)
+
+
+def _fft_size(n: int) -> int:
+    """The smallest 2^a 3^b 5^c >= n (a fast FFT length)."""
+    best = 1 << (n - 1).bit_length()
+    p5 = 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            size = p35 * (1 << max(0, (-(-n // p35) - 1).bit_length()))
+            best = min(best, size)
+            p35 *= 3
+        p5 *= 5
+    return best
+
+
+def _autocovariance(dev: NDArray[np.float64], order: int) -> NDArray[np.float64]:
+    """Sum over the moves (rows) of each lag's products, lags 0..order (one FFT pass)."""
+    n = dev.shape[1]
+    size = _fft_size(n + order)  # no wrap-around for the lags wanted
+    f = np.fft.rfft(dev, size, axis=1)
+    power = np.sum(f.real * f.real + f.imag * f.imag, axis=0)
+    return np.asarray(np.fft.irfft(power, size)[: order + 1], dtype=np.float64)
+
+
+def _normalised(r: NDArray[np.float64]) -> NDArray[np.float64]:
+    r = r / r[0]
+    r[1:] *= 1.0 - 1e-9 * np.arange(1, r.size) / (r.size - 1)  # stays positive definite
+    return r
+
+
+def noise_whitener(dev: NDArray[np.float64], order: int, scale: float) -> Whitener | None:
+    """The :class:`Whitener` of the per-move noise ``dev`` (M, rows), or None without noise.
+
+    Two passes (prewhitening, as in spectral estimation): the first whitener comes from the
+    autocovariance of the Hann-tapered records (the taper keeps the dynamic range: see
+    :func:`_taper`), which flattens the spectrum but blurs its sharp peaks (the resonances
+    the current noise rings); the second from the bare autocovariance of what the first
+    leaves, nearly white, so neither leakage nor the taper's blur matters. Both up to lag
+    ``order``, averaged over the moves; the map is the second after the first.
+    """
+    n = dev.shape[1]
+    order = max(1, min(order, n // 2))
+    r = _autocovariance(dev * _taper(n), order)
+    if not r[0] > scale * scale * 1e-20 * dev.size:
+        return None
+    first = Whitener.from_autocovariance(_normalised(r))
+    rest = first.apply(dev, axis=1)
+    r2 = _autocovariance(rest, order)
+    if not r2[0] > 0:
+        return first
+    return first.then(Whitener.from_autocovariance(_normalised(r2)))

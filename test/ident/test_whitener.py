@@ -1,0 +1,92 @@
+"""The whitener's closed forms and the window's shortcuts give what whitening the columns gives."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from galvo_sysid.ident.refine.regressors import free_responses, powers, second_difference
+from galvo_sysid.ident.refine.whitener import Whitener, noise_whitener
+from galvo_sysid.ident.refine.window import WindowProblem, window_records
+from galvo_sysid.model import PSI, TAU
+from galvo_sysid.sim.simulator import simulate_window
+
+LAG = 6e-6
+
+
+@pytest.fixture(scope='module')
+def problem() -> WindowProblem:
+    """A short window of the paper's scanner, whitened by its moves' scatter."""
+    cur, enc = simulate_window(PSI, moves=12, seed=5)
+    ((cur, enc),) = window_records([(cur, enc)], 3)
+    prob = WindowProblem(cur, enc, sample_period=TAU, delay=1, fraction=0.6, n_modes=3)
+    dev = second_difference(enc - enc.mean(axis=0))[:, prob.first:]
+    prob.set_whitening(noise_whitener(dev, 40, 1.0))
+    return prob
+
+
+def _candidates() -> tuple[np.ndarray, np.ndarray]:
+    w_c = np.geomspace(2e4, 1.5e5, 30)
+    z_c = np.tile([3e-4, 0.01, 0.2], 10)  # light to heavy damping: the powers span decades
+    return w_c, z_c
+
+
+def test_exponential_tail_is_the_whitened_tail_of_powers() -> None:
+    wh = Whitener.from_autocovariance(np.exp(-np.arange(9) / 3.0)).then(
+        Whitener.from_autocovariance(np.exp(-np.arange(6) / 2.0)))
+    w_c, z_c = _candidates()
+    _, e = powers(w_c, z_c, 60, TAU)
+    start, rows = 2, 58
+    plain = wh.apply(e[:, start: start + rows].real.T).T + 1j * wh.apply(
+        e[:, start: start + rows].imag.T).T
+    tail = wh.exponential_tail(e, start, rows)
+    assert tail.shape == (w_c.size, rows - wh.order)
+    scale = np.max(np.abs(plain), axis=1, keepdims=True)
+    assert np.max(np.abs(tail - plain[:, wh.order:]) / scale) < 1e-12
+
+
+def test_convolve_filtered_is_the_filtered_convolution(problem: WindowProblem) -> None:
+    regs = problem.regs
+    w_c, z_c = _candidates()
+    h = regs.mode_impulses(w_c, z_c, LAG)
+    taps = problem.whiten.filter  # type: ignore[union-attr]
+    forced, filtered = regs.convolve_filtered(h, taps)
+    plain = regs.convolve(h)
+    assert np.array_equal(forced, plain) or np.max(np.abs(forced - plain)) < 1e-12 * np.max(
+        np.abs(plain))
+    direct = np.array([np.convolve(row, taps)[: plain.shape[1]] for row in plain])
+    exact = slice(taps.size - 1, None)
+    assert np.max(np.abs(filtered[:, exact] - direct[:, exact])) < 1e-10 * np.max(
+        np.abs(direct))
+
+
+def test_candidate_columns_equal_whitening_the_columns(problem: WindowProblem) -> None:
+    w_c, z_c = _candidates()
+    _, e = powers(w_c, z_c, problem.n, problem.t)
+    forced = problem.regs.convolve(problem.regs.mode_impulses(w_c, z_c, LAG, e))[:, problem.first:]
+    free = free_responses(w_c, z_c, problem.n, problem.t, e, first=problem.first)
+    plain = problem.apply_whitening(np.stack([forced, free[0::2], free[1::2]], axis=-1), axis=1)
+    fast = problem._candidates(LAG, w_c, z_c)
+    assert fast.shape == plain.shape
+    for c in range(3):
+        scale = np.max(np.abs(plain[..., c]))
+        assert np.max(np.abs(fast[..., c] - plain[..., c])) < 1e-12 * scale
+
+
+def test_cached_columns_follow_the_whitening(problem: WindowProblem) -> None:
+    omega = np.array([2.5e4, 6e4, 1.2e5])
+    zeta = np.array([0.01, 0.02, 0.005])
+    first = problem.columns(omega, zeta, LAG)
+    assert not first.flags.writeable
+    assert problem.columns(omega, zeta, LAG) is first
+    raw = problem.columns(omega, zeta, LAG, whitened=False)
+    assert np.allclose(problem.apply_whitening(raw), first)
+    old = problem.whiten
+    try:
+        problem.set_whitening(None)
+        assert np.array_equal(problem.columns(omega, zeta, LAG), raw)
+    finally:
+        problem.set_whitening(old)
+    assert np.allclose(problem.columns(omega, zeta, LAG), first)
+    other = problem.columns(omega * 1.01, zeta, LAG)
+    assert not np.allclose(other, first)
