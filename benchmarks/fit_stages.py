@@ -1,0 +1,111 @@
+"""Where a window's refined fit spends its time: the stages of ``identify_window``, per window.
+
+Simulates single windows of 100 moves of the paper's scanner (the paper's 19 angles, noise
+seeds 0..``--windows``-1 in turn), identifies each with ``identify_window`` (the sysid node's
+default, the refined fit), and times each stage by wrapping the functions that run it:
+
+- ``screen``: the moves' screening (:func:`galvo_sysid.ident.identify._screen`);
+- ``start (ARX)``: the paper pipeline whose model starts the fit;
+- ``starts (scan)``: the frequency scans that choose the starts;
+- ``polish``: every ``least_squares`` run (stage 1 from each start, stage 2, a profile's
+  re-polish);
+- ``prewhiten``: the noise model from the moves' scatter;
+- ``profiles``: the weakly excited modes' scans over their bands;
+- ``result``: covariance, Cramer-Rao bound, checks and the strong modes' local profiles.
+
+It prints, per stage, the mean wall time per window, its share, and the calls per window; the
+median time per window; the machine's load. For a finer view, the same windows can be
+profiled line by line (``pip install line_profiler``; not a dependency of the project)::
+
+    python -m cProfile -o /tmp/fit.prof benchmarks/fit_stages.py --windows 10
+    python -c "import pstats; pstats.Stats('/tmp/fit.prof').sort_stats('tottime').print_stats(30)"
+
+Usage: ``.venv/bin/python benchmarks/fit_stages.py [--windows 20]``.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
+os.environ.setdefault('OMP_NUM_THREADS', '1')
+
+import argparse
+import collections
+import datetime
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import galvo_sysid.ident.identify as identify_module
+import galvo_sysid.ident.refine.fit as fit_module
+from galvo_sysid.ident.refine.joint import JointProblem
+from galvo_sysid.model import PAPER_ANGLES, TAU
+from galvo_sysid.sim.simulator import simulate_window
+
+STAGES: tuple[tuple[Any, str, str], ...] = (
+    (identify_module, '_screen', 'screen'),
+    (identify_module, 'paper_pipeline', 'start (ARX)'),
+    (fit_module, '_starts', 'starts (scan)'),
+    (fit_module, 'least_squares', 'polish'),
+    (JointProblem, 'prewhiten', 'prewhiten'),
+    (fit_module, 'profile_modes', 'profiles'),
+    (fit_module, '_result', 'result'),
+)
+"""(owner, attribute, stage): the functions timed. ``profile_modes`` is also called inside
+``_result``'s checks only through ``check_linearised``, which is timed as part of ``result``."""
+
+SECONDS: collections.Counter[str] = collections.Counter()
+CALLS: collections.Counter[str] = collections.Counter()
+
+
+def _timed(function: Any, stage: str) -> Any:
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        start = time.perf_counter()
+        try:
+            return function(*args, **kwargs)
+        finally:
+            SECONDS[stage] += time.perf_counter() - start
+            CALLS[stage] += 1
+    return wrapper
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--windows', type=int, default=20, help='windows to fit')
+    args = parser.parse_args()
+    load = ', '.join(f'{x:.2f}' for x in os.getloadavg())
+    print(f'fit stages of identify_window (refined), {args.windows} windows of 100 moves, '
+          f'paper scanner; {datetime.datetime.now().isoformat(timespec="seconds")}, load '
+          f'average {load}\n')
+    angles = [PAPER_ANGLES[i % len(PAPER_ANGLES)] for i in range(args.windows)]
+    windows = [simulate_window(a, moves=100, seed=i) for i, a in enumerate(angles)]
+    identify_module.identify_window(*windows[0], sample_period=TAU)  # imports, caches
+    for owner, name, stage in STAGES:
+        setattr(owner, name, _timed(getattr(owner, name), stage))
+    totals = []
+    for current, encoder in windows:
+        start = time.perf_counter()
+        identify_module.identify_window(current, encoder, sample_period=TAU)
+        totals.append(time.perf_counter() - start)
+    n = len(windows)
+    total = sum(totals)
+    print(f'{"stage":<15} {"ms/window":>9} {"share":>6} {"calls/window":>12}')
+    for _, _, stage in STAGES:
+        print(f'{stage:<15} {1e3 * SECONDS[stage] / n:>9.1f} {SECONDS[stage] / total:>6.0%} '
+              f'{CALLS[stage] / n:>12.1f}')
+    rest = total - sum(SECONDS.values())
+    print(f'{"the rest":<15} {1e3 * rest / n:>9.1f} {rest / total:>6.0%}')
+    print(f'\nper window: mean {1e3 * total / n:.1f} ms, median '
+          f'{1e3 * statistics.median(totals):.1f} ms (target of issue 13: < 60 ms); load '
+          f'average at the end {os.getloadavg()[0]:.2f}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
