@@ -17,7 +17,8 @@ forward and back) and replayed with fresh move_ids and advancing stamps. Reporte
   and along the run.
 
 Usage: ``.venv/bin/python benchmarks/sysid_load.py [--rate 1000] [--duration 60]
-[--window-size 100] [--fit-processes 2] [--angles 0.3 0.9 2.1] [--qos best_effort]``.
+[--window-size 100] [--fit-processes 2] [--method refined] [--angles 0.3 0.9 2.1]
+[--qos best_effort]``.
 """
 
 from __future__ import annotations
@@ -98,7 +99,7 @@ def run(args: argparse.Namespace, workdir: Path) -> dict[str, Any]:
         [str(Path(sys.executable).parent / 'sysid'), '--ros-args', '-r', f'__ns:={NS}',
          '-p', f'window_size:={args.window_size}', '-p', f'fit_processes:={args.fit_processes}',
          '-p', 'stats_period:=1.0', '-p', 'diagnostics_period:=0.0',
-         '-p', f'qos_reliability:={args.qos}'],
+         '-p', f'qos_reliability:={args.qos}', '-p', f'method:={args.method}'],
         stdout=log, stderr=subprocess.STDOUT)
     context = Context()
     rclpy.init(context=context)
@@ -224,6 +225,8 @@ def main() -> int:
     parser.add_argument('--duration', type=float, default=60.0, help='seconds (default 60)')
     parser.add_argument('--window-size', type=int, default=100)
     parser.add_argument('--fit-processes', type=int, default=2)
+    parser.add_argument('--method', choices=['refined', 'paper-A', 'paper-B'], default='refined',
+                        help="the sysid node's identification method")
     parser.add_argument('--angles', type=float, nargs='+', default=[0.3, 0.9, 2.1])
     parser.add_argument('--qos', choices=['reliable', 'best_effort'], default='reliable',
                         help="the move topics' reliability (publisher and sysid)")
@@ -237,7 +240,8 @@ def main() -> int:
     os.environ.setdefault('ROS_LOG_DIR', str(workdir / 'ros'))
     print(f'sysid load: {args.rate:g} moves/s for {args.duration:g} s, windows of '
           f'{args.window_size} moves over {len(args.angles)} angles (both signs), '
-          f'{args.fit_processes} fit processes, {args.qos} QoS; {os.cpu_count()} CPUs, '
+          f'{args.fit_processes} fit processes, method {args.method}, {args.qos} QoS; '
+          f'{os.cpu_count()} CPUs, '
           f'load average before {os.getloadavg()[0]:.2f}; log in {workdir}', flush=True)
     r = run(args, workdir)
     rows = [
