@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -31,6 +32,24 @@ SEED = 31
 def _cli(venv_bin: Path, *args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([str(venv_bin / 'galvo-sysid'), *args], capture_output=True,
                           text=True, timeout=300, check=False)
+
+
+def _paced(pubs: dict[str, Any], msgs: list[tuple[str, Any]]) -> None:
+    """Publish at the moves' own pace (a driver's), not faster than their stamps advance.
+
+    A burst of hundreds of moves published at once arrives with one topic's messages up to a
+    second of stamps ahead of the other's (reliable delivery repairs what the burst lost),
+    which a reader rightly takes for a jump in time; a driver never publishes so.
+    """
+    start = time.monotonic()
+    first = None
+    for signal, msg in msgs:
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        first = stamp if first is None else first
+        ahead = (stamp - first) - (time.monotonic() - start)
+        if ahead > 0.005:
+            time.sleep(ahead)
+        pubs[signal].publish(msg)
 
 
 def _durable(bag: Path) -> int:
@@ -75,12 +94,10 @@ def test_killed_record_keeps_the_messages_before_the_kill(graph: Graph, tmp_path
     msgs = move_messages(moves, t0=1000.0)
     first, rest = msgs[:400], msgs[400:]  # 100 moves of +0.3 and 100 of -0.3, then 20 more
     wait_matched(graph, pubs.values())
-    for signal, msg in first:
-        pubs[signal].publish(msg)
+    _paced(pubs, first)
     # the recorder wrote them (its flush interval passed): what a crash must not lose
     graph.spin_until(lambda: _durable(bag) >= 400, 60, 'the first 400 messages in the bag')
-    for signal, msg in rest:
-        pubs[signal].publish(msg)
+    _paced(pubs, rest)
     recorder.kill()  # SIGKILL: no clean-up code runs
 
     for command in ('info', 'identify'):
