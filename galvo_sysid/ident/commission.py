@@ -55,7 +55,7 @@ if TYPE_CHECKING:
 
     from numpy.typing import ArrayLike, NDArray
 
-    from galvo_sysid.ident.refine.window import Whitener
+    from galvo_sysid.ident.refine.whitener import Whitener
 
 __all__ = [
     'Commissioning',

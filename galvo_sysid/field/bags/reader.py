@@ -349,9 +349,9 @@ class BagReader(BagFile):
         :func:`~galvo_sysid.interfaces.messages.read_move_samples`, its samples straight into
         an array (the values rosbags' deserializer gives, without building a message); any
         other by rosbags. A message that cannot be decoded or converted is yielded as
-        :class:`SetAside` instead; reading goes on. With ``max_samples``, a record longer than that is refused
-        before its samples are decoded (its length is read from the serialized bytes): a
-        :class:`SetAside` carrying the record's fields.
+        :class:`SetAside` instead; reading goes on. With ``max_samples``, a record longer
+        than that is refused before its samples are decoded (its length is read from the
+        serialized bytes): a :class:`SetAside` carrying the record's fields.
 
         Raises:
             NoGalvoTopicsError, WrongTopicTypeError, CorruptBagError: see

@@ -14,7 +14,7 @@ resolves a mode no single window does. Both run the same steps (the tuning is
    and ``extra_starts`` are tried too; the lowest cost wins.
 2. **Two stages.** Stage 1 is ordinary least squares on the filtered data; stage 2 is
    generalised least squares: data and model are whitened with each window's noise model
-   (:class:`~galvo_sysid.ident.refine.window.Whitener`: the exact prediction-error map of
+   (:class:`~galvo_sysid.ident.refine.whitener.Whitener`: the exact prediction-error map of
    the stationary noise whose autocovariance the moves' scatter gives, without what each
    move's own initial conditions explain), and each window is weighed by its noise. With the
    right noise model this is the maximum-likelihood fit, and its ``A^-1`` the Cramer-Rao
@@ -55,11 +55,8 @@ from galvo_sysid.ident.refine.profile import (
     widen_to_profiles,
 )
 from galvo_sysid.ident.refine.result import RefinedFit
-from galvo_sysid.ident.refine.window import (
-    Whitener,
-    WindowProblem,
-    window_records,
-)
+from galvo_sysid.ident.refine.whitener import Whitener
+from galvo_sysid.ident.refine.window import WindowProblem, window_records
 from galvo_sysid.model.dynamics import InputDynamics, check_sample_period, split_delay
 from galvo_sysid.model.modal import ModalModel
 

@@ -23,7 +23,7 @@ import numpy as np
 from scipy.linalg import qr, solve_triangular
 
 from galvo_sysid.errors import IdentificationError
-from galvo_sysid.ident.refine.window import noise_whitener
+from galvo_sysid.ident.refine.whitener import noise_whitener
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

@@ -12,13 +12,8 @@ import numpy as np
 
 from galvo_sysid.ident.refine.options import DEFAULT_WHITEN_ORDER
 from galvo_sysid.ident.refine.regressors import FIRST_ROW, second_difference
-from galvo_sysid.ident.refine.window import (
-    Whitener,
-    WindowProblem,
-    noise_whitener,
-    validate,
-    window_records,
-)
+from galvo_sysid.ident.refine.whitener import Whitener, noise_whitener
+from galvo_sysid.ident.refine.window import WindowProblem, validate, window_records
 from galvo_sysid.model.dynamics import split_delay
 
 if TYPE_CHECKING:
@@ -35,7 +30,7 @@ def window_noise_filters(windows: Sequence[tuple[ArrayLike, ArrayLike]], *,
                          order: int = DEFAULT_WHITEN_ORDER) -> list[Whitener | None]:
     """A prewhitening map per window from its moves' scatter alone (no model needed).
 
-    The :class:`~galvo_sysid.ident.refine.window.Whitener` of the (1 - q^-1)^2-filtered
+    The :class:`~galvo_sysid.ident.refine.whitener.Whitener` of the (1 - q^-1)^2-filtered
     encoder deviations from the window's mean: the noise the averaged window carries, up to
     the small part the input deviations explain.
     """

@@ -29,7 +29,7 @@ from galvo_sysid.ident.refine.regressors import (
     powers,
     second_difference,
 )
-from galvo_sysid.ident.refine.whitener import Whitener, noise_whitener
+from galvo_sysid.ident.refine.whitener import Whitener
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -39,8 +39,7 @@ if TYPE_CHECKING:
 
     Floats: TypeAlias = Sequence[float] | NDArray[np.float64]
 
-__all__ = ['MIN_SAMPLES', 'Whitener', 'WindowProblem', 'noise_whitener', 'validate',
-           'window_records']
+__all__ = ['MIN_SAMPLES', 'WindowProblem', 'validate', 'window_records']
 
 MIN_SAMPLES = 64
 """Fewest samples per record the refined fit accepts."""
