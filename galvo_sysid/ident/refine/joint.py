@@ -198,12 +198,17 @@ def covariance(joint: JointProblem, x: NDArray[np.float64],
                                                               NDArray[np.float64]]:
     """Covariance of [k0, k_i, omega_i, zeta_i, (lag)] and how it was made (see module docs).
 
-    Also the Cramer-Rao bound of the same parameters, ``A^-1``: the inverse Fisher matrix of
-    the window averages with the noise model the fit prewhitens with (each window's AR
-    filter and weight from its moves' scatter), every nuisance parameter (free responses,
-    offset, lag state) partialled out (the Schur complement). It is what an efficient
-    estimator's covariance tends to when the noise model is right; the sandwich is this
-    estimator's own covariance, right also when the noise model is not.
+    Also the Cramer-Rao bound of the same parameters: the inverse of the Fisher matrix
+    ``sum_w J_w^T Sigma_w^-1 J_w`` of the window averages, every nuisance parameter (free
+    responses, offset, lag state) partialled out (the Schur complement), with Sigma_w the
+    window's stationary noise covariance as
+    :func:`~galvo_sysid.ident.refine.whitener.stationary_noise_model` estimates it from the
+    moves' deviations, their own nuisance taken out. It is not the fit's ``A^-1``: the fit's
+    whitener comes from the deviations whole, whose nuisance (the ringing each move starts
+    with) is no noise of the average and can fill a spectral valley where a mode's
+    information lies (``A^-1`` of omega_1 ten times the bound on ``random_scanner(1)``).
+    The sandwich is this estimator's own covariance; it lies above the bound where the fit's
+    noise model is not the noise's (the fit is then not efficient).
 
     Returns:
         ``(covariance, 'sandwich' | 'white', Cramer-Rao bound)``.
