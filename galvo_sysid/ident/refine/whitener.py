@@ -14,11 +14,13 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.linalg import cholesky, solve_triangular
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
-__all__ = ['BOUND_ITERATIONS', 'Whitener', 'noise_whitener', 'stationary_noise_model']
+__all__ = ['BOUND_ITERATIONS', 'Whitener', 'WhitenerChain', 'noise_whitener',
+           'stationary_noise_model']
 
 
 def _taper(n: int) -> NDArray[np.float64]:
@@ -167,22 +169,48 @@ BOUND_ITERATIONS = 3
 """Expectation-maximisation steps of :func:`stationary_noise_model` (see there)."""
 
 
-def _two_pass(records: NDArray[np.float64], order: int) -> Whitener | None:
-    """:func:`noise_whitener`'s two passes on records whose lag sums are all that counts."""
+class WhitenerChain:
+    """Whiteners applied one after the other (what :meth:`Whitener.then` composes, without
+    composing their heads: cheaper where only :meth:`apply` is wanted)."""  # noqa: D205, D209
+
+    def __init__(self, *stages: Whitener) -> None:
+        self.stages = stages
+
+    def apply(self, arr: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
+        """Whiten ``arr`` along ``axis`` by every stage in turn."""
+        out = np.asarray(arr, dtype=float)
+        for stage in self.stages:
+            out = stage.apply(out, axis=axis)
+        return out
+
+
+def _levinson(autocovariance: NDArray[np.float64]) -> Whitener:
+    """:meth:`Whitener.from_autocovariance` by a Cholesky factorisation (LAPACK, not a Python
+    loop: the same map to rounding, for the bound's repeated noise models)."""  # noqa: D205, D209
+    r = np.asarray(autocovariance, dtype=float)
+    p = r.size - 1
+    toeplitz = r[np.abs(np.arange(p + 1)[:, None] - np.arange(p + 1)[None, :])]
+    chol = cholesky(toeplitz, lower=True, check_finite=False)
+    rows = solve_triangular(chol, np.eye(p + 1), lower=True, check_finite=False)
+    return Whitener(np.tril(rows[:p, :p]), rows[p, ::-1].copy())
+
+
+def _two_pass(records: NDArray[np.float64], order: int) -> WhitenerChain | None:
+    """:func:`noise_whitener`'s two passes on records (moves along axis 0, time along 1)."""
     n = records.shape[1]
     r = _autocovariance(records * _taper(n), order)
     if not r[0] > 0:
         return None
-    first = Whitener.from_autocovariance(_normalised(r))
-    r2 = _autocovariance(first.apply(records, axis=1), order)
+    first = _levinson(_normalised(r))
+    r2 = _autocovariance(first.apply(records.T).T, order)
     if not r2[0] > 0:
-        return first
-    return first.then(Whitener.from_autocovariance(_normalised(r2)))
+        return WhitenerChain(first)
+    return WhitenerChain(first, _levinson(_normalised(r2)))
 
 
 def stationary_noise_model(dev: NDArray[np.float64], nuisance: NDArray[np.float64],
                            order: int, iterations: int = BOUND_ITERATIONS) -> tuple[
-                               Whitener, float] | None:
+                               WhitenerChain, float] | None:
     """The stationary noise under per-move nuisance: (whitener, whitened variance) or None.
 
     ``dev`` (M, rows) are the moves' deviations from their mean, each the stationary noise
@@ -216,12 +244,13 @@ def stationary_noise_model(dev: NDArray[np.float64], nuisance: NDArray[np.float6
     q, _ = np.linalg.qr(nuisance / scale)
     p = q.shape[1]
     records = dev - (dev @ q) @ q.T
-    result: tuple[Whitener, float] | None = None
+    dev_t = np.ascontiguousarray(dev.T)
+    result: tuple[WhitenerChain, float] | None = None
     for _ in range(iterations + 1):
         wh = _two_pass(records, order)
         if wh is None:
             return result
-        w_dev = wh.apply(dev, axis=1).T
+        w_dev = wh.apply(dev_t)
         q_w, r_w = np.linalg.qr(wh.apply(q))
         resid = w_dev - q_w @ (q_w.T @ w_dev)
         var = float(np.sum(resid * resid) / (m * max(n - p, 1)))
