@@ -14,6 +14,7 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.linalg import cholesky, solve_triangular
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -171,6 +172,8 @@ BOUND_ORDER_DIVISOR = 3
 """The bound's noise model has at least rows // this many lags (see
 :func:`~galvo_sysid.ident.refine.joint.covariance`)."""
 
+_CHOLESKY_ORDER = 200  # up to this many lags a LAPACK Cholesky beats the Python recursion
+
 
 
 class WhitenerChain:
@@ -189,11 +192,17 @@ class WhitenerChain:
 
 
 def _levinson(autocovariance: NDArray[np.float64]) -> Whitener:
-    """:meth:`Whitener.from_autocovariance` with its recursion in place (no array built per
-    order: the same map to rounding, five times faster at 500 lags, for the bound's repeated
-    noise models)."""  # noqa: D205, D209
+    """:meth:`Whitener.from_autocovariance`, faster for the bound's repeated noise models (the
+    same map to rounding): up to ``_CHOLESKY_ORDER`` lags by a LAPACK Cholesky factor of the
+    Toeplitz matrix (its inverse's rows are the prediction-error rows), beyond by the
+    recursion in place (no array built per order; the factor's cubic cost grows faster)."""  # noqa: D205, D209
     r = np.asarray(autocovariance, dtype=float)
     order = r.size - 1
+    if order <= _CHOLESKY_ORDER:
+        toeplitz = r[np.abs(np.arange(order + 1)[:, None] - np.arange(order + 1)[None, :])]
+        chol = cholesky(toeplitz, lower=True, check_finite=False)
+        rows = solve_triangular(chol, np.eye(order + 1), lower=True, check_finite=False)
+        return Whitener(np.tril(rows[:order, :order]), rows[order, ::-1].copy())
     head = np.zeros((order, order))
     a = np.zeros(order + 1)
     a[0] = 1.0
