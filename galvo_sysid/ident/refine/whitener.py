@@ -5,7 +5,9 @@ rows, then an FIR filter); :func:`noise_whitener` makes one from a window's per-
 in two passes (see there). Besides whitening any columns (:meth:`Whitener.apply`), a whitener
 gives the whitened tail of a decaying exponential in closed form
 (:meth:`Whitener.exponential_tail`): the free-response columns of many candidate modes are
-whitened without a transform each.
+whitened without a transform each. :func:`stationary_noise_model` estimates the noise the
+Cramer-Rao bound needs: the stationary noise of deviations that also carry each move's own
+nuisance (its initial conditions), by expectation-maximisation over that nuisance.
 """
 
 from __future__ import annotations
