@@ -26,10 +26,13 @@ the commissioned one), and the bound is evaluated at the true parameters on the 
 estimator); the efficiency rms(error) / rms(bound); the bias mean(error) / rms(bound); the
 largest |error| / bound (a fit in a wrong minimum shows there); the calibration
 rms(error / reported std) over the windows that resolved the mode; the median reported std
-over the bound (``std/b``: the fit reports a sandwich covariance, robust to a wrong noise
-model, while the bound trusts the fitted noise model: the two part where that model is
-wrong). A condition PASSes when for k0 and every parameter of a mode resolved in every
-window: median |error| <= the limit, efficiency <= 1.3, calibration within 0.8-1.25. Modes
+over the bound (``std/b``: the fit reports a sandwich covariance, its own covariance whatever
+its noise model, while the bound is that of the noise's stationary covariance estimated from
+the moves' scatter less each move's own ringing: above 1 where the fit's noise model, from
+the deviations whole, is not the noise's, i.e. where the fit is not efficient; a bound 10-20 %
+low at a lightly damped mode's frequency is a known limit of that estimate). A condition
+PASSes when for k0 and every parameter of a mode resolved in every window: median |error|
+<= the limit, efficiency <= 1.3, calibration within 0.8-1.25. Modes
 not resolved in every window are reported (resolved count) and left out of the verdict. The
 chance that an estimator exactly at the bound fails these tests by sampling alone, with this
 many seeds, is printed last (0.14 per parameter at 40 seeds, 0.57 at 8): read a FAIL

@@ -39,7 +39,9 @@ class IdentificationResult:
             (:func:`~galvo_sysid.ident.screen.screen_moves`); ``moves`` counts the rest.
         crlb_std: Cramer-Rao lower bound of each parameter's standard deviation, keyed like
             :meth:`std_by_name` (the refined method; empty otherwise): what these data allow
-            any unbiased estimator, with the noise model estimated from the moves' scatter.
+            any unbiased estimator, with the stationary noise estimated from the moves' scatter
+            (their own initial conditions taken out); a std above it means the fit's own
+            noise model is not that noise (the fit is not efficient there).
     """
 
     target_angle: float

@@ -1,7 +1,9 @@
 """The Cramer-Rao bound of windows at given parameters (no fit): what data could tell.
 
-:func:`crlb_at` evaluates the bound that the refined fit reports (its ``A^-1``: the noise
-model from the moves' scatter, every nuisance partialled out) at parameters one gives, e.g.
+:func:`crlb_at` evaluates the bound that the refined fit reports (the Fisher matrix with the
+stationary noise the moves' scatter shows, their own nuisance taken out, every nuisance
+parameter partialled out: :func:`~galvo_sysid.ident.refine.joint.covariance`) at parameters
+one gives, e.g.
 the true ones of a simulated scanner: the information a move mix, a number of moves and a
 dither carry, before any data are recorded (:mod:`galvo_sysid.ident.plan`). The shared
 linear parameters are solved from the data at the given nonlinear ones.
@@ -41,7 +43,8 @@ def crlb_at(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: fl
             ratios; the residues and k0 are solved from the data).
         dynamics: Input dynamics (the lag at which the bound is evaluated).
         estimate_lag: Whether the lag counts as unknown.
-        whiten_order: Lags of the noise model.
+        whiten_order: Lags of the noise model (of the fit's prewhitening and of the bound's
+            noise estimate).
 
     Returns:
         Standard deviation by parameter name (``k0``, ``k1``.., ``omega_1``.., ``zeta_1``..,

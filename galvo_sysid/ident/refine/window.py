@@ -183,10 +183,12 @@ class WindowProblem:
         return np.asarray(np.exp(-(self.k - self.first) * rate), dtype=np.float64)
 
     def column_derivatives(self, omega: NDArray[np.float64], zeta: NDArray[np.float64],
-                           lag: float, phi: NDArray[np.float64], *, lag_free: bool) -> list[
+                           lag: float, phi: NDArray[np.float64], *, lag_free: bool,
+                           whitened: bool = True) -> list[
                                tuple[NDArray[np.intp], NDArray[np.float64]]]:
         """For every nonlinear parameter (ln omega_i, ln zeta_i, then T_l / T if estimated):
-        (affected column indices, d columns / d parameter), by forward differences."""  # noqa: D205, D209
+        (affected column indices, d columns / d parameter), by forward differences; ``phi``
+        is :meth:`columns` at the point, whitened or not as ``whitened`` says."""  # noqa: D205, D209
         n = self.n_modes
         h = 1e-6
         # all 2 n single-mode perturbations in one batch: omega_i e^h, then zeta_i e^h
@@ -208,7 +210,9 @@ class WindowProblem:
             lagged = responses[2 * n:]
             lagged[0] = self.regs.rigid(lag + step, lagged[0])
             blocks += [lagged[:, self.first:].T, self.lag_free(lag + step)[:, None]]
-        new = self.apply_whitening(np.hstack(blocks))
+        new = np.hstack(blocks)
+        if whitened:
+            new = self.apply_whitening(new)
         out: list[tuple[NDArray[np.intp], NDArray[np.float64]]] = []
         for j in range(2 * n):
             i = j % n
