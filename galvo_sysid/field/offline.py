@@ -150,7 +150,8 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
         if monitor is None else monitor
     rejected: list[dict[str, Any]] = []
     mismatched: list[MismatchedWindow] = []
-    # exactly the sysid node's fit function (nodes/sysid_node.py: SysidNode._fit_function)
+    # the sysid node's fit function (nodes/sysid_node.py: SysidNode._fit_function), with the
+    # Cramer-Rao bound, which the node leaves out (its messages do not carry it)
     fit = functools.partial(fit_window, method=method, model=plant,
                             options={'na': int(na), 'nb': int(nb)})
     windows: list[WindowResult] = []

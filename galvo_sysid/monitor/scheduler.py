@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
+import functools
 import multiprocessing
 import os
 import threading
@@ -38,7 +39,7 @@ if TYPE_CHECKING:
     from galvo_sysid.model import PlantModel
     from galvo_sysid.monitor.moves import Window
 
-__all__ = ['FitOutcome', 'WindowScheduler', 'fit_window']
+__all__ = ['FitOutcome', 'WindowScheduler', 'fit_window', 'node_fit']
 
 
 def fit_window(window: Window, *, method: str = 'refined', model: PlantModel | None = None,
@@ -61,6 +62,21 @@ def fit_window(window: Window, *, method: str = 'refined', model: PlantModel | N
     return identify_window(window.current, window.encoder, sample_period=window.sample_period,
                            method=method, target_angle=window.target_angle, model=model,
                            **dict(options or {}))
+
+
+def node_fit(*, method: str, model: PlantModel | None, na: int,
+             nb: int) -> functools.partial[IdentificationResult]:
+    """The sysid node's fit of a window: :func:`fit_window` with its parameters.
+
+    The refined fit leaves out the Cramer-Rao bound (``bound=False``): the node's
+    ``ModalParameters`` do not carry it, and its noise model costs about a sixth of a fit.
+    ``galvo-sysid identify`` fits with it (its JSON reports ``crlb_std``); everything else is
+    the same.
+    """
+    options: dict[str, Any] = {'na': int(na), 'nb': int(nb)}
+    if method == 'refined':
+        options['bound'] = False
+    return functools.partial(fit_window, method=method, model=model, options=options)
 
 
 def _child_init(parent: int) -> None:

@@ -44,7 +44,7 @@ from galvo_sysid.interfaces.topics import (
 from galvo_sysid.model import PlantModel, load_model, model_label
 from galvo_sysid.monitor.pairing import MoveWindower
 from galvo_sysid.monitor.parameters import SYSID_PARAMETERS, WINDOWER_PARAMETERS
-from galvo_sysid.monitor.scheduler import FitOutcome, fit_window
+from galvo_sysid.monitor.scheduler import FitOutcome, node_fit
 from galvo_sysid.monitor.tasks import SysidTask
 from galvo_sysid.monitor.verdict import STATUS_MISMATCH
 from galvo_sysid.nodes.command_line import print_help
@@ -124,8 +124,8 @@ class SysidNode(Node):
                 'sample_period': self.model.sample_period}
 
     def _fit_function(self, values: dict[str, Any]) -> functools.partial[Any]:
-        return functools.partial(fit_window, method=values['method'], model=self.model,
-                                 options={'na': values['na'], 'nb': values['nb']})
+        return node_fit(method=values['method'], model=self.model, na=values['na'],
+                        nb=values['nb'])
 
     def _apply(self, values: dict[str, Any], changed: set[str]) -> None:
         if changed & set(WINDOWER_PARAMETERS):

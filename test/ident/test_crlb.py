@@ -136,3 +136,23 @@ def test_errors_scatter_as_the_bound_says() -> None:
         z.extend((est[n] - truth[n]) / bound[n] for n in names)
     rms = float(np.sqrt(np.mean(np.square(z))))
     assert 0.85 < rms < 1.18, rms
+
+
+def test_without_the_bound_the_fit_is_the_same_and_says_no_bound() -> None:
+    """``bound=False`` (the sysid node's setting) changes nothing but the bound's absence."""
+    from galvo_sysid.errors import ConfigurationError
+    from galvo_sysid.ident.identify import identify_window
+    from galvo_sysid.model import PSI
+    from galvo_sysid.sim.simulator import simulate_window
+
+    cur, enc = simulate_window(PSI, moves=30, seed=4)
+    full = identify_window(cur, enc, sample_period=TAU)
+    bare = identify_window(cur, enc, sample_period=TAU, bound=False)
+    assert full.crlb_std
+    assert set(full.crlb_std) == set(full.model.parameters())
+    assert bare.crlb_std == {}
+    assert bare.model == full.model
+    assert bare.std_by_name() == full.std_by_name()
+    assert bare.resolved == full.resolved
+    with pytest.raises(ConfigurationError, match='bound'):
+        identify_window(cur, enc, sample_period=TAU, bound='no')

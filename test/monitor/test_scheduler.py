@@ -207,3 +207,28 @@ def test_leaving_on_an_error_drops_the_queued_windows() -> None:
 def test_bad_settings(kwargs: dict, match: str) -> None:
     with pytest.raises(ConfigurationError, match=match):
         WindowScheduler(fake_result, **kwargs)
+
+
+def test_the_node_fit_leaves_out_only_the_bound() -> None:
+    """The sysid node's fit: the refined fit without the Cramer-Rao bound it never publishes,
+    otherwise the same call as ``galvo-sysid identify`` makes."""
+    from galvo_sysid.model import PSI, TAU
+    from galvo_sysid.monitor.moves import Window
+    from galvo_sysid.monitor.scheduler import fit_window, node_fit
+    from galvo_sysid.sim.simulator import simulate_window
+
+    refined = node_fit(method='refined', model=None, na=15, nb=15)
+    assert refined.func is fit_window
+    assert refined.keywords['options'] == {'na': 15, 'nb': 15, 'bound': False}
+    paper = node_fit(method='paper-A', model=None, na=12, nb=14)
+    assert paper.keywords == {'method': 'paper-A', 'model': None,
+                              'options': {'na': 12, 'nb': 14}}
+    cur, enc = simulate_window(PSI, moves=20, seed=2)
+    win = Window(index=0, target_angle=PSI, current=cur, encoder=enc, sample_period=TAU,
+                 move_ids=tuple(range(20)), first_stamp=0.0, last_stamp=1.0)
+    by_node = refined(win)
+    offline = fit_window(win, options={'na': 15, 'nb': 15})
+    assert by_node.crlb_std == {}
+    assert offline.crlb_std
+    assert by_node.model == offline.model
+    assert by_node.std_by_name() == offline.std_by_name()

@@ -66,6 +66,7 @@ def crlb_at(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: fl
     if any(prob.whiten is None for prob in problems):
         raise InvalidDataError('the moves do not scatter: no noise to bound the error with')
     _, _, bound = covariance(joint, x, joint.coefficients(x))
+    assert bound is not None
     names = [*(f'k{i}' if i else 'k0' for i in range(n + 1)),
              *(f'omega_{i}' for i in range(1, n + 1)), *(f'zeta_{i}' for i in range(1, n + 1)),
              *(('lag',) if estimate_lag else ())]

@@ -224,7 +224,7 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
         x, profiles = _profile_and_search(joint, x, band_list, polish)
     return _result(joint, x, band_list, profiles, resolve_z=opt.resolve_z,
                    adequacy_limit=opt.adequacy_limit if noisy else 0.0, dynamics=dynamics,
-                   starts=len(starts))
+                   starts=len(starts), bound=opt.bound)
 
 
 def _starts(joint: JointProblem, initial: ModalModel, x_init: NDArray[np.float64],
@@ -283,7 +283,7 @@ def _profile_and_search(joint: JointProblem, x: NDArray[np.float64],
 def _result(joint: JointProblem, x: NDArray[np.float64],
             band_list: Sequence[tuple[float, float]], profiles: list[ModeProfile], *,
             resolve_z: float, adequacy_limit: float, dynamics: InputDynamics,
-            starts: int) -> RefinedFit:
+            starts: int, bound: bool = True) -> RefinedFit:
     """The fit at x: covariance, checks, resolved modes."""
     n = joint.n_modes
     omega, zeta, lag = joint.unpack(x)
@@ -293,7 +293,7 @@ def _result(joint: JointProblem, x: NDArray[np.float64],
                        natural_frequencies=tuple(float(w) for w in omega),
                        damping_ratios=tuple(float(z) for z in zeta))
     names = (*model.parameters(), *(('lag',) if joint.estimate_lag else ()))
-    cov, method, crlb = covariance(joint, x, coefs)
+    cov, method, crlb = covariance(joint, x, coefs, bound=bound)
     widen_to_profiles(cov, profiles, [*shared, *omega, *zeta], n)
     res2 = den2 = 0.0
     ratios: dict[tuple[float, float], float] = {}

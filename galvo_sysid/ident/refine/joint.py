@@ -197,8 +197,8 @@ class JointProblem:
 
 
 def covariance(joint: JointProblem, x: NDArray[np.float64],
-               coefs: Sequence[NDArray[np.float64]]) -> tuple[NDArray[np.float64], str,
-                                                              NDArray[np.float64]]:
+               coefs: Sequence[NDArray[np.float64]], *, bound: bool = True) -> tuple[
+                   NDArray[np.float64], str, NDArray[np.float64] | None]:
     """Covariance of [k0, k_i, omega_i, zeta_i, (lag)] and how it was made (see module docs).
 
     Also the Cramer-Rao bound of the same parameters: the inverse of the Fisher matrix
@@ -214,7 +214,8 @@ def covariance(joint: JointProblem, x: NDArray[np.float64],
     noise model is not the noise's (the fit is then not efficient).
 
     Returns:
-        ``(covariance, 'sandwich' | 'white', Cramer-Rao bound)``.
+        ``(covariance, 'sandwich' | 'white', Cramer-Rao bound)``; the bound is None when
+        ``bound`` is false (its noise model not estimated).
 
     Raises:
         IdentificationError: The Jacobian is singular.
@@ -244,16 +245,17 @@ def covariance(joint: JointProblem, x: NDArray[np.float64],
         m = dev.shape[0]
         b_w = g.T @ g / (m * (m - 1))
         b_mat = b_w if b_mat is None else b_mat + b_w
-        info.append(_fisher(prob, raw, omega, zeta, lag, coef, phys, joint, a_w))
+        if bound:
+            info.append(_fisher(prob, raw, omega, zeta, lag, coef, phys, joint, a_w))
     assert a_mat is not None
     a_inv = _inverse(a_mat)
     if white:
         dof = max(rows - a_mat.shape[0] - sum(p.n_linear - 1 - n for p in joint.problems), 1)
         cov = np.asarray(a_inv * res2 / dof, dtype=np.float64)
-        return cov, 'white', cov.copy()
+        return cov, 'white', cov.copy() if bound else None
     assert b_mat is not None
     return (np.asarray(a_inv @ b_mat @ a_inv, dtype=np.float64), 'sandwich',
-            _inverse(np.sum(info, axis=0)))
+            _inverse(np.sum(info, axis=0)) if bound else None)
 
 
 def _inverse(a_mat: NDArray[np.float64]) -> NDArray[np.float64]:

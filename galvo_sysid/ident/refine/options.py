@@ -77,6 +77,9 @@ class RefineOptions:
             rather than from ``damping_start``: for a good start (e.g. pooled single-window
             results); without a scan that moves a frequency by over 1 %, the first (ordinary
             least-squares) stage is then left out.
+        bound: Also compute the Cramer-Rao bound (``crlb_std``; its noise model costs about
+            a sixth of a window's fit). The sysid node, whose messages do not carry it,
+            leaves it out.
     """
 
     damping_start: float = DEFAULT_DAMPING_START
@@ -87,6 +90,7 @@ class RefineOptions:
     adequacy_limit: float = DEFAULT_ADEQUACY_LIMIT
     max_nfev: int = 100
     keep_initial_damping: bool = False
+    bound: bool = True
 
     def __post_init__(self) -> None:
         lo, hi = self.lag_bounds
@@ -100,6 +104,8 @@ class RefineOptions:
                 raise ConfigurationError(f'{name} must be a whole number >= 0, got {value!r}')
         if self.max_nfev < 1:
             raise ConfigurationError('max_nfev must be >= 1')
+        if not isinstance(self.bound, bool):
+            raise ConfigurationError(f'bound must be true or false, got {self.bound!r}')
         if not (self.resolve_z >= 0 and self.adequacy_limit >= 0):
             raise ConfigurationError('resolve_z and adequacy_limit must be >= 0')
 
