@@ -17,6 +17,7 @@ it falls back to the white-noise formula ``sigma^2 A^-1``.
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -60,27 +61,50 @@ class JointProblem:
         self.fixed_lag = fixed_lag
         self.n_eval = 0
         self.whiten_order = DEFAULT_WHITEN_ORDER
+        self.stationary = False  # set by prewhiten (see there)
         self.set_weights(weights)
 
     def prewhiten(self, x: NDArray[np.float64], order: int) -> None:
         """Whiten each window by its noise model at x, and weigh it by its noise.
 
-        The noise model comes from the moves' deviations from the window's mean at x, whole:
-        the noise is stationary, and each move's own initial conditions are part of it (the
-        nuisance columns are projected out after whitening, as generalised least squares with
-        nuisance does). A window without noise is left unwhitened.
+        The noise model is the stationary noise of the moves' deviations from the window's
+        mean at x, each move's own nuisance (the ringing, lag state and offset it starts
+        with) taken out by expectation-maximisation
+        (:func:`~galvo_sysid.ident.refine.whitener.stationary_noise_model`: first pass with
+        ``order`` lags or a third of the rows if more, second with ``order``): the
+        maximum-likelihood weighting of the window's average, whose own nuisance columns
+        absorb that ringing. (The deviations whole would count the ringing as noise: on a
+        short record where a mode rings through, it fills the valley the mode's antiresonance
+        cuts into the noise spectrum, and the fit weighs down the rows that carry the mode:
+        omega_1 of ``random_scanner(1)`` came out with 6 times the bound's rms error, now
+        1.3.) Where that model cannot be made, the deviations' two-pass model whole
+        (:func:`~galvo_sysid.ident.refine.whitener.noise_whitener`); a window without noise
+        is left unwhitened. Sets :attr:`stationary` when every window has the first kind:
+        the fit's ``A`` is then the Fisher information (see :func:`covariance`).
         """
         omega, zeta, lag = self.unpack(x)
         self.whiten_order = order
+        n = self.n_modes
         weights = []
+        stationary = True
         for prob, coef in zip(self.problems, self.coefficients(x), strict=True):
             dev = prob.deviations(omega, zeta, lag, coef)
+            nuis = prob.columns(omega, zeta, lag, whitened=False)[:, 1 + n:]
+            found = stationary_noise_model(
+                dev, nuis, max(order, dev.shape[1] // BOUND_ORDER_DIVISOR), second_order=order)
+            if found is not None:
+                chain, var = found
+                prob.set_whitening(chain.stages[0].then(chain.stages[1]))
+                weights.append(1.0 / max(math.sqrt(var / (prob.moves - 1)), 1e-300))
+                continue
+            stationary = False
             prob.set_whitening(noise_whitener(dev, order,
                                               float(np.sqrt(np.mean(prob.yf_raw**2)))))
             wdev = prob.apply_whitening(dev, axis=1)
             weights.append(1.0 / max(float(np.sqrt(np.mean(wdev**2) / (prob.moves - 1))),
                                      1e-300))
         self.set_weights(weights)
+        self.stationary = stationary
 
     def set_weights(self, weights: Floats) -> None:
         """Use new window weights (e.g. after prewhitening); forgets the cached solution."""
@@ -206,12 +230,13 @@ def covariance(joint: JointProblem, x: NDArray[np.float64],
     responses, offset, lag state) partialled out (the Schur complement), with Sigma_w the
     window's stationary noise covariance as
     :func:`~galvo_sysid.ident.refine.whitener.stationary_noise_model` estimates it from the
-    moves' deviations, their own nuisance taken out. It is not the fit's ``A^-1``: the fit's
-    whitener comes from the deviations whole, whose nuisance (the ringing each move starts
-    with) is no noise of the average and can fill a spectral valley where a mode's
-    information lies (``A^-1`` of omega_1 ten times the bound on ``random_scanner(1)``).
-    The sandwich is this estimator's own covariance; it lies above the bound where the fit's
-    noise model is not the noise's (the fit is then not efficient).
+    moves' deviations, their own nuisance taken out. When the fit was prewhitened with that
+    model (:meth:`JointProblem.prewhiten`; :attr:`JointProblem.stationary`), its ``A`` is
+    that Fisher matrix and the bound is ``A^-1``; otherwise (a window whose model could not
+    be made, fixed noise filters) the model is estimated here. A whitener from the
+    deviations whole would count each move's ringing as noise (``A^-1`` of omega_1 ten times
+    the bound on ``random_scanner(1)``). The sandwich is this estimator's own covariance; it
+    lies above the bound where the fit's noise model is not the noise's.
 
     Returns:
         ``(covariance, 'sandwich' | 'white', Cramer-Rao bound)``; the bound is None when
@@ -245,7 +270,7 @@ def covariance(joint: JointProblem, x: NDArray[np.float64],
         m = dev.shape[0]
         b_w = g.T @ g / (m * (m - 1))
         b_mat = b_w if b_mat is None else b_mat + b_w
-        if bound:
+        if bound and not joint.stationary:
             info.append(_fisher(prob, raw, omega, zeta, lag, coef, phys, joint, a_w))
     assert a_mat is not None
     a_inv = _inverse(a_mat)
@@ -254,8 +279,13 @@ def covariance(joint: JointProblem, x: NDArray[np.float64],
         cov = np.asarray(a_inv * res2 / dof, dtype=np.float64)
         return cov, 'white', cov.copy() if bound else None
     assert b_mat is not None
-    return (np.asarray(a_inv @ b_mat @ a_inv, dtype=np.float64), 'sandwich',
-            _inverse(np.sum(info, axis=0)) if bound else None)
+    if not bound:
+        crlb = None
+    elif joint.stationary:  # the fit's weighting is the stationary noise's: A is the Fisher
+        crlb = a_inv.copy()
+    else:
+        crlb = _inverse(np.sum(info, axis=0))
+    return np.asarray(a_inv @ b_mat @ a_inv, dtype=np.float64), 'sandwich', crlb
 
 
 def _inverse(a_mat: NDArray[np.float64]) -> NDArray[np.float64]:
