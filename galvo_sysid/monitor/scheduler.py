@@ -69,7 +69,8 @@ def node_fit(*, method: str, model: PlantModel | None, na: int,
     """The sysid node's fit of a window: :func:`fit_window` with its parameters.
 
     The refined fit leaves out the Cramer-Rao bound (``bound=False``): the node's
-    ``ModalParameters`` do not carry it, and its noise model costs about a sixth of a fit.
+    ``ModalParameters`` do not carry it (where the fit could not weigh a window by its
+    stationary noise model, the bound would need one of its own: a sixth of a fit).
     ``galvo-sysid identify`` fits with it (its JSON reports ``crlb_std``); everything else is
     the same.
     """

@@ -77,9 +77,10 @@ class RefineOptions:
             rather than from ``damping_start``: for a good start (e.g. pooled single-window
             results); without a scan that moves a frequency by over 1 %, the first (ordinary
             least-squares) stage is then left out.
-        bound: Also compute the Cramer-Rao bound (``crlb_std``; its noise model costs about
-            a sixth of a window's fit). The sysid node, whose messages do not carry it,
-            leaves it out.
+        bound: Also report the Cramer-Rao bound (``crlb_std``: the fit's ``A^-1`` when it
+            was weighed by the stationary noise model, else a noise model estimated for it,
+            about a sixth of a window's fit). The sysid node, whose messages do not carry
+            it, leaves it out.
     """
 
     damping_start: float = DEFAULT_DAMPING_START
