@@ -34,6 +34,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import ok as rclpy_ok
 from rclpy.utilities import try_shutdown
 
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError, InvalidDataError, one_line
@@ -450,6 +451,12 @@ def run_node(factory: Callable[[], Node], *, args: Sequence[str] | None = None,
             executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except _rclpy.RCLError:
+        # Ctrl-C / SIGTERM shut the context down, but the KeyboardInterrupt fell into a
+        # finaliser (Python ignores it there) and the spin went on to fail on the dead
+        # context: a stop all the same. On a live context it is an error.
+        if rclpy_ok():
+            raise
     except (GalvoSysidError, ParameterException) as err:
         print(f'error: {one_line(err)}', file=sys.stderr)
         code = 2

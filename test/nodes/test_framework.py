@@ -87,3 +87,33 @@ def test_starting_a_node_bounds_dds_memory_unless_the_user_configured_fast_dds()
     assert reader is not None
     assert reader.get('is_default_profile') == 'true'
     assert reader.findtext('d:historyMemoryPolicy', namespaces=ns) == 'DYNAMIC'
+
+
+def _spin_until_the_context_dies(fail_on_live: bool) -> int:
+    """run_node with a spin that fails as rclpy's does when a signal shut the context down
+    while its KeyboardInterrupt was lost in a finaliser (or, ``fail_on_live``, without)."""
+    import pytest
+    import rclpy
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+    from rclpy.node import Node
+
+    def spin(node: Node) -> None:
+        if not fail_on_live:
+            rclpy.shutdown()
+        raise _rclpy.RCLError('failed to initialize wait set: the given context is not valid')
+
+    monkey = pytest.MonkeyPatch()
+    monkey.setattr(framework.rclpy, 'spin', spin)
+    try:
+        return framework.run_node(lambda: Node('galvo_test_dead_context'), args=[])
+    finally:
+        monkey.undo()
+
+
+def test_a_spin_failing_on_a_shut_down_context_is_a_clean_stop() -> None:
+    import pytest
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+    assert _spin_until_the_context_dies(fail_on_live=False) == 0
+    with pytest.raises(_rclpy.RCLError):  # on a live context the error is not swallowed
+        _spin_until_the_context_dies(fail_on_live=True)
