@@ -70,7 +70,16 @@ from dither_gain import excitation
 from galvo_sysid.errors import GalvoSysidError
 from galvo_sysid.ident.identify import identify_window
 from galvo_sysid.ident.refine.bound import crlb_at
-from galvo_sysid.model import PAPER_MODEL, PSI, TAU, PlantModel, parameter_mode, relative_errors
+from galvo_sysid.ident.result import IdentificationResult
+from galvo_sysid.model import (
+    PAPER_MODEL,
+    PSI,
+    TAU,
+    ModalModel,
+    PlantModel,
+    parameter_mode,
+    relative_errors,
+)
 from galvo_sysid.sim.config import SimulatorConfig
 from galvo_sysid.sim.controller import ControllerConfig
 from galvo_sysid.sim.dither import dither_for_modes
@@ -185,15 +194,21 @@ def run_window(cond: Condition, seed: int) -> Window:
     res = identify_window(cur, enc, sample_period=t, model=truth, target_angle=cond.angle)
     seconds = time.perf_counter() - t0
     bound = crlb_at([(cur, enc)], sample_period=t, model=truth.modal, dynamics=truth.dynamics)
-    ref = truth.modal.parameters()
-    est = res.model.parameters()
-    std = res.std_by_name()
-    return Window(errors=relative_errors(res.model, truth.modal),
+    return scored(res, bound, truth.modal, seconds=seconds,
+                  excitation=excitation(cur) if truth is PAPER_MODEL else math.nan)
+
+
+def scored(result: IdentificationResult, bound: dict[str, float], truth: ModalModel, *,
+           seconds: float, excitation: float = math.nan) -> Window:
+    """A fit against the truth: relative errors and bounds, z-scores, reported std."""
+    ref = truth.parameters()
+    est = result.model.parameters()
+    std = result.std_by_name()
+    return Window(errors=relative_errors(result.model, truth),
                   bounds={n: bound[n] / abs(ref[n]) for n in ref},
                   z={n: (est[n] - ref[n]) / std[n] if std[n] > 0 else math.nan for n in ref},
                   reported={n: std[n] / abs(ref[n]) for n in ref},
-                  resolved=res.resolved, seconds=seconds,
-                  excitation=excitation(cur) if truth is PAPER_MODEL else math.nan)
+                  resolved=result.resolved, seconds=seconds, excitation=excitation)
 
 
 def _rms(x: np.ndarray) -> float:

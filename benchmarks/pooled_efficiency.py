@@ -31,7 +31,6 @@ os.environ.setdefault('OMP_NUM_THREADS', '1')
 
 import argparse
 import datetime
-import math
 import statistics
 import sys
 import time
@@ -43,13 +42,13 @@ from numpy.typing import NDArray
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from efficiency import Window, false_fail_rate, parameter_stats
+from efficiency import Window, _cell, _load, false_fail_rate, parameter_stats, scored
 
 from galvo_sysid.errors import GalvoSysidError
 from galvo_sysid.ident.identify import identify_joint, identify_window
 from galvo_sysid.ident.pool import pool_results
 from galvo_sysid.ident.refine.bound import crlb_at
-from galvo_sysid.model import PAPER_ANGLES, PAPER_MODEL, TAU, relative_errors
+from galvo_sysid.model import PAPER_ANGLES, PAPER_MODEL, TAU
 from galvo_sysid.sim.simulator import GalvoSimulator
 
 MAX_POOLED_EFFICIENCY = 1.2
@@ -85,22 +84,7 @@ def pooled_window(seed: int, angles: list[float]) -> Window:
     res = identify_joint(records, sample_period=TAU, initial=start, keep_initial_damping=True)
     seconds = time.perf_counter() - t0
     bound = crlb_at(records, sample_period=TAU, model=truth.modal, dynamics=truth.dynamics)
-    ref = truth.modal.parameters()
-    est = res.model.parameters()
-    std = res.std_by_name()
-    return Window(errors=relative_errors(res.model, truth.modal),
-                  bounds={n: bound[n] / abs(ref[n]) for n in ref},
-                  z={n: (est[n] - ref[n]) / std[n] if std[n] > 0 else math.nan for n in ref},
-                  reported={n: std[n] / abs(ref[n]) for n in ref},
-                  resolved=res.resolved, seconds=seconds, excitation=math.nan)
-
-
-def _cell(x: float, fmt: str = '.3g') -> str:
-    return format(x, fmt) if math.isfinite(x) else '-'
-
-
-def _load() -> str:
-    return ', '.join(f'{x:.2f}' for x in os.getloadavg())
+    return scored(res, bound, truth.modal, seconds=seconds)
 
 
 def main(argv: list[str] | None = None) -> int:
