@@ -28,9 +28,10 @@ largest |error| / bound (a fit in a wrong minimum shows there); the calibration
 rms(error / reported std) over the windows that resolved the mode; the median reported std
 over the bound (``std/b``: the fit reports a sandwich covariance, its own covariance whatever
 its noise model, while the bound is that of the noise's stationary covariance estimated from
-the moves' scatter less each move's own ringing: above 1 where the fit's noise model, from
-the deviations whole, is not the noise's, i.e. where the fit is not efficient; a bound 10-20 %
-low at a lightly damped mode's frequency is a known limit of that estimate). A condition
+the moves' scatter less each move's own ringing, the fit's own noise model at the truth
+rather than at its estimate: above 1 where the fit's weighting is not the noise's, i.e. where
+it is not efficient; a bound 10-20 % low at a lightly damped mode's frequency is a known
+limit of that estimate). A condition
 PASSes when for k0 and every parameter of a mode resolved in every window: median |error|
 <= the limit, efficiency <= 1.3, calibration within 0.8-1.25. Modes
 not resolved in every window are reported (resolved count) and left out of the verdict. The
