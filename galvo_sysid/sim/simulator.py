@@ -97,6 +97,7 @@ from galvo_sysid.sim.config import Move, SimulatorConfig
 from galvo_sysid.sim.controller import LoopMargins, design_controller, loop_margins
 from galvo_sysid.sim.dither import dither_signal
 from galvo_sysid.sim.loop import ClosedLoop, map_state
+from galvo_sysid.sim.noise import ar_coefficient
 from galvo_sysid.sim.profiles import MoveProfile, move_profile
 
 if TYPE_CHECKING:
@@ -120,10 +121,6 @@ class _State:
     time: float
 
 
-def _ar_coefficient(corner: float, sample_period: float) -> float:
-    return 0.0 if math.isinf(corner) else math.exp(-2 * math.pi * corner * sample_period)
-
-
 class GalvoSimulator:
     """A galvano scanner under closed-loop positioning control, move by move.
 
@@ -144,8 +141,8 @@ class GalvoSimulator:
         self._loops: OrderedDict[Physics, ClosedLoop] = OrderedDict()
         self._profiles: dict[float, MoveProfile] = {}
         self._rng = np.random.default_rng(seed)
-        self._a_i = _ar_coefficient(cfg.current_noise_corner, cfg.sample_period)
-        self._a_v = _ar_coefficient(cfg.measurement_noise_corner, cfg.sample_period)
+        self._a_i = ar_coefficient(cfg.current_noise_corner, cfg.sample_period)
+        self._a_v = ar_coefficient(cfg.measurement_noise_corner, cfg.sample_period)
         loop = self._loop(plant_at(self._base, time=0.0, move=0, drifts=self._drifts,
                                    steps=self._steps))
         ac = self.controller.state_space()[0]
