@@ -196,11 +196,7 @@ class JointProblem:
             nuis = solve_triangular(r, q.T @ (prob.yf - phi[:, : 1 + n] @ shared),
                                     check_finite=False) / scale
             coef = np.concatenate([shared, nuis])
-            derivs = prob.column_derivatives(omega, zeta, lag, phi,
-                                             lag_free=self.estimate_lag)
-            v = np.empty((phi.shape[0], len(derivs)))
-            for j, (idx, dphi) in enumerate(derivs):
-                v[:, j] = dphi @ coef[idx]
+            v = prob.model_derivatives(omega, zeta, lag, coef, lag_free=self.estimate_lag)
             v_parts.append(wt * (v - q @ (q.T @ v)))
         v_all = np.vstack(v_parts)
         v_all -= q_f @ (q_f.T @ v_all)
@@ -306,12 +302,10 @@ def _jacobian(prob: WindowProblem, omega: NDArray[np.float64], zeta: NDArray[np.
     """(d model / d [k0, k_i, omega_i, zeta_i, (lag)], nuisance columns) of a window."""
     n = prob.n_modes
     phi = prob.columns(omega, zeta, lag, whitened=whitened)
-    derivs = prob.column_derivatives(omega, zeta, lag, phi, lag_free=lag_free,
-                                     whitened=whitened)
-    jac = np.empty((phi.shape[0], 1 + n + len(derivs)))
+    v = prob.model_derivatives(omega, zeta, lag, coef, lag_free=lag_free, whitened=whitened)
+    jac = np.empty((phi.shape[0], 1 + n + v.shape[1]))
     jac[:, : 1 + n] = phi[:, : 1 + n]
-    for j, (idx, dphi) in enumerate(derivs):
-        jac[:, 1 + n + j] = (dphi @ coef[idx]) / phys[j]
+    jac[:, 1 + n:] = v / phys[: v.shape[1]]
     return jac, phi[:, 1 + n:]
 
 

@@ -182,47 +182,51 @@ class WindowProblem:
         rate = min(self.t / lag, _MAX_DECAY)
         return np.asarray(np.exp(-(self.k - self.first) * rate), dtype=np.float64)
 
-    def column_derivatives(self, omega: NDArray[np.float64], zeta: NDArray[np.float64],
-                           lag: float, phi: NDArray[np.float64], *, lag_free: bool,
-                           whitened: bool = True) -> list[
-                               tuple[NDArray[np.intp], NDArray[np.float64]]]:
-        """For every nonlinear parameter (ln omega_i, ln zeta_i, then T_l / T if estimated):
-        (affected column indices, d columns / d parameter), by forward differences; ``phi``
-        is :meth:`columns` at the point, whitened or not as ``whitened`` says."""  # noqa: D205, D209
+    def model_derivatives(self, omega: NDArray[np.float64], zeta: NDArray[np.float64],
+                          lag: float, coef: NDArray[np.float64], *, lag_free: bool,
+                          whitened: bool = True) -> NDArray[np.float64]:
+        """The model's derivatives: d (columns @ coef) / d x_j, shape (rows, 2 n (+1)).
+
+        For every nonlinear parameter (ln omega_i, ln zeta_i, then T_l / T if ``lag_free``), by
+        forward differences, whitened or not.
+
+        Each difference is combined with the coefficients before it is convolved and whitened
+        (both linear): one response and one whitened column per parameter, not one per
+        column it touches.
+        """
         n = self.n_modes
         h = 1e-6
+        regs, first = self.regs, self.first
         # all 2 n single-mode perturbations in one batch: omega_i e^h, then zeta_i e^h
-        w_p = np.concatenate([omega * math.exp(h), omega])
-        z_p = np.concatenate([zeta, zeta * math.exp(h)])
+        w_p = np.concatenate([omega * math.exp(h), omega, omega])
+        z_p = np.concatenate([zeta, zeta * math.exp(h), zeta])
         _, e = powers(w_p, z_p, self.n, self.t)
-        impulses = self.regs.mode_impulses(w_p, z_p, lag, e)
-        step = h * self.t
-        if lag_free:  # the rigid body and the modes at lag + step, in the same batch
-            h_lag = self.regs.lag_impulse(lag + step)
-            impulses = np.concatenate([
-                impulses, h_lag[None, :],
-                self.regs.mode_impulses(omega, zeta, lag + step, powers(omega, zeta, self.n,
-                                                                        self.t)[1], h_lag)])
-        responses = self.regs.convolve(impulses)
-        free = free_responses(w_p, z_p, self.n, self.t, e, first=self.first)
-        blocks = [responses[: 2 * n, self.first:].T, free.T]
+        h_lag = regs.lag_impulse(lag)
+        imp = regs.mode_impulses(w_p, z_p, lag, e, h_lag)
+        gains = np.tile(coef[1: 1 + n], 2)
+        diff = gains[:, None] * (imp[: 2 * n] - np.tile(imp[2 * n:], (2, 1)))
+        free = free_responses(w_p, z_p, self.n, self.t, e, first=first)
+        cos = np.tile(coef[1 + n: 1 + 3 * n: 2], 2)[:, None]
+        sin = np.tile(coef[2 + n: 1 + 3 * n: 2], 2)[:, None]
+        free_diff = (cos * (free[0: 4 * n: 2] - np.tile(free[4 * n:: 2], (2, 1)))
+                     + sin * (free[1: 4 * n: 2] - np.tile(free[4 * n + 1:: 2], (2, 1))))
+        if lag_free:  # the rigid body, the modes and the lag state at lag + step
+            step = h * self.t
+            k0 = coef[0]
+            h_lag2 = regs.lag_impulse(lag + step)
+            base = imp[2 * n:]
+            moved = regs.mode_impulses(omega, zeta, lag + step, e[2 * n:], h_lag2)
+            lag_imp = (k0 * ((lag + step) * h_lag2 - lag * h_lag)
+                       + coef[1: 1 + n] @ (moved - base))
+            diff = np.vstack([diff, lag_imp[None, :]])
+        out = regs.convolve(diff)[:, first:].T
+        out[:, : 2 * n] += free_diff.T
         if lag_free:
-            lagged = responses[2 * n:]
-            lagged[0] = self.regs.rigid(lag + step, lagged[0])
-            blocks += [lagged[:, self.first:].T, self.lag_free(lag + step)[:, None]]
-        new = np.hstack(blocks)
+            out[:, -1] += (coef[-1] * (self.lag_free(lag + step) - self.lag_free(lag))
+                           - k0 * step * regs.rigid_single[first:])
         if whitened:
-            new = self.apply_whitening(new)
-        out: list[tuple[NDArray[np.intp], NDArray[np.float64]]] = []
-        for j in range(2 * n):
-            i = j % n
-            idx = np.array([1 + i, 1 + n + 2 * i, 2 + n + 2 * i])
-            cols = new[:, [j, 2 * n + 2 * j, 2 * n + 2 * j + 1]]
-            out.append((idx, (cols - phi[:, idx]) / h))
-        if lag_free:
-            idx = np.array([*range(1 + n), self.n_linear - 1])
-            out.append((idx, (new[:, 6 * n:] - phi[:, idx]) / h))
-        return out
+            out = self.apply_whitening(out)
+        return np.asarray(out / h, dtype=np.float64)
 
     # -- scans -----------------------------------------------------------------------------
     def _candidates(self, lag: float, w_c: NDArray[np.float64],
