@@ -78,3 +78,28 @@ def test_the_false_fail_rate_falls_with_the_seeds() -> None:
     few, many = eff.false_fail_rate(6, draws=4000), eff.false_fail_rate(60, draws=4000)
     assert 0.3 < few < 0.9
     assert many < few / 3
+
+
+def test_the_estimated_bound_is_scored_against_the_true_one() -> None:
+    # crlb/b: the median of the estimated bound over the yardstick, per parameter
+    wins = [eff.Window(errors={'k0': 0.0}, bounds={'k0': 1.0}, z={'k0': 0.0},
+                       reported={'k0': 1.0}, resolved=(), seconds=0.0, excitation=math.nan,
+                       estimated={'k0': r}) for r in (0.8, 0.9, 1.3)]
+    assert eff.parameter_stats('k0', wins).estimated == pytest.approx(0.9)
+    assert math.isnan(eff.parameter_stats('k0', [_window({'k0': 0.0}, {'k0': 1.0},
+                                                         {'k0': 0.0})]).estimated)
+
+
+def test_scored_divides_the_estimated_bound_by_the_true_one() -> None:
+    from galvo_sysid.ident.result import result_from_vectors
+    truth = PAPER_MODEL.modal
+    names = list(truth.parameters())
+    res = result_from_vectors(truth.parameters(), dict.fromkeys(names, 1.0), n_modes=3,
+                              target_angle=PSI, moves=100, input_delay=0.0,
+                              lag_time_constant=0.0, fit_percent=100.0, method='refined',
+                              resolved=(True, True, True))
+    exact = dict.fromkeys(names, 2.0)
+    win = eff.scored(res, exact, truth, seconds=0.0, estimated=dict.fromkeys(names, 1.0))
+    assert win.estimated == dict.fromkeys(names, 0.5)
+    assert win.bounds['k0'] == pytest.approx(2.0 / truth.k0)
+    assert eff.scored(res, exact, truth, seconds=0.0).estimated == {}
