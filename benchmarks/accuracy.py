@@ -49,6 +49,7 @@ from numpy.typing import NDArray
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from galvo_sysid import keep_freed_memory
 from galvo_sysid.errors import GalvoSysidError
 from galvo_sysid.ident.identify import identify_joint, identify_window
 from galvo_sysid.ident.pool import pool_results
@@ -104,6 +105,7 @@ def _row(name: str, cells: list[float], width: int = 10) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    keep_freed_memory()  # as the entry points do: the fits reuse freed memory
     parser = argparse.ArgumentParser(description=__doc__.split('\n', 1)[0])
     parser.add_argument('--seeds', type=int, nargs='+', default=[0, 1, 2, 3, 4, 5])
     parser.add_argument('--moves', type=int, default=100)

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from galvo_sysid import keep_freed_memory
 from galvo_sysid.ident.identify import identify_window
 from galvo_sysid.model import PAPER_MODEL, PSI, TAU, relative_errors
 from galvo_sysid.sim.config import DEFAULT_ENCODER_RESOLUTION, SimulatorConfig
@@ -93,6 +94,7 @@ def _load() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    keep_freed_memory()  # as the entry points do: the fits reuse freed memory
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seeds', type=int, default=10)
     parser.add_argument('--amplitudes', type=float, nargs='+', default=[0.0, 0.005, 0.01],

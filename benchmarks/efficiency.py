@@ -70,6 +70,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from dither_gain import excitation
 
+from galvo_sysid import keep_freed_memory
 from galvo_sysid.errors import GalvoSysidError
 from galvo_sysid.ident.identify import identify_window
 from galvo_sysid.ident.refine.bound import crlb_at, crlb_known_noise
@@ -313,6 +314,7 @@ def _cell(x: float, fmt: str = '.3g') -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    keep_freed_memory()  # as the entry points do: the fits reuse freed memory
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seeds', type=int, default=100,
                         help='noise seeds 0..N-1 per condition')

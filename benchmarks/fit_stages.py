@@ -43,6 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import galvo_sysid.ident.identify as identify_module
 import galvo_sysid.ident.refine.fit as fit_module
+from galvo_sysid import keep_freed_memory
 from galvo_sysid.ident.refine.joint import JointProblem
 from galvo_sysid.model import PAPER_ANGLES, TAU
 from galvo_sysid.sim.simulator import simulate_window
@@ -75,6 +76,7 @@ def _timed(function: Any, stage: str) -> Any:
 
 
 def main() -> int:
+    keep_freed_memory()  # as the entry points do: the fits reuse freed memory
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--windows', type=int, default=20, help='windows to fit')

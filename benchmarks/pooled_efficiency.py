@@ -47,6 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from efficiency import Window, _cell, _load, false_fail_rate, parameter_stats, scored
 
+from galvo_sysid import keep_freed_memory
 from galvo_sysid.errors import GalvoSysidError
 from galvo_sysid.ident.identify import identify_joint, identify_window
 from galvo_sysid.ident.pool import pool_results
@@ -106,6 +107,7 @@ def _attempt(seed: int, angles: list[float]) -> Window | str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    keep_freed_memory()  # as the entry points do: the fits reuse freed memory
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seeds', type=int, default=40, help='noise seeds 0..N-1')
     parser.add_argument('--jobs', type=int, default=2, help='processes')

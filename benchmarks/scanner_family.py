@@ -37,6 +37,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from galvo_sysid import keep_freed_memory  # noqa: E402
 from galvo_sysid.errors import GalvoSysidError, ModelMismatchError  # noqa: E402
 from galvo_sysid.ident.commission import commission  # noqa: E402
 from galvo_sysid.ident.identify import identify_window  # noqa: E402
@@ -126,6 +127,7 @@ def run(seed: int, windows: int) -> dict[str, object]:
 
 
 def main() -> int:
+    keep_freed_memory()  # as the entry points do: the fits reuse freed memory
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seeds', nargs='+', type=int, default=list(SEEDS))
     parser.add_argument('--windows', type=int, default=5,

@@ -12,7 +12,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING, Any
 
-from galvo_sysid import limit_blas_threads
+from galvo_sysid import keep_freed_memory, limit_blas_threads
 from galvo_sysid.cli.common import HelpFormatter, finite_float, guarded, positive, print_json
 
 if TYPE_CHECKING:
@@ -174,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``discrepancy`` alone (``python -m galvo_sysid.cli.discrepancy``)."""
     limit_blas_threads()  # before numpy is imported
+    keep_freed_memory()
     from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD, DEFAULT_TOLERANCE
     from galvo_sysid.model.effects import CANDIDATE_NAMES
 

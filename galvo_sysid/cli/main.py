@@ -30,7 +30,7 @@ import importlib.util
 import sys
 from typing import TYPE_CHECKING
 
-from galvo_sysid import limit_blas_threads
+from galvo_sysid import keep_freed_memory, limit_blas_threads
 from galvo_sysid.cli import bag, echo, identify, info, param, record, replay, simulate, topic
 from galvo_sysid.cli.common import guarded
 
@@ -122,6 +122,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # Before numpy is imported (the subcommands import it when they run); see
     # galvo_sysid.limit_blas_threads.
     limit_blas_threads()
+    keep_freed_memory()
     words = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(plugins=not words or words[0] not in COMMANDS)
     args = parser.parse_args(words)

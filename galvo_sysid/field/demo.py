@@ -217,9 +217,10 @@ class _Demo:
 
 def main() -> int:
     """Run the demo; return the process exit code."""
-    from galvo_sysid import limit_blas_threads
+    from galvo_sysid import keep_freed_memory, limit_blas_threads
 
     limit_blas_threads()  # before numpy is imported; the node processes inherit it
+    keep_freed_memory()
     from galvo_sysid.model import REFERENCE_MODEL
 
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')

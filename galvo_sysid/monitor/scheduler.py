@@ -81,14 +81,17 @@ def node_fit(*, method: str, model: PlantModel | None, na: int,
 
 
 def _child_init(parent: int) -> None:
-    """Set up a fit process: leave Ctrl-C to the parent, and die with it.
+    """Set up a fit process: leave Ctrl-C to the parent, die with it, reuse freed memory.
 
     The parent shuts its children down on Ctrl-C; if it is killed outright (SIGKILL), a
     watcher thread notices the new parent pid and ends the child, so no orphan is left.
     """
     import signal
 
+    from galvo_sysid import keep_freed_memory
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    keep_freed_memory()  # a spawned child does not inherit the parent's setting
 
     def watch() -> None:
         while os.getppid() == parent:

@@ -66,7 +66,8 @@ def test_candidate_columns_equal_whitening_the_columns(problem: WindowProblem) -
     forced = problem.regs.convolve(problem.regs.mode_impulses(w_c, z_c, LAG, e))[:, problem.first:]
     free = free_responses(w_c, z_c, problem.n, problem.t, e, first=problem.first)
     plain = problem.apply_whitening(np.stack([forced, free[0::2], free[1::2]], axis=-1), axis=1)
-    fast = problem._candidates(LAG, w_c, z_c)
+    fast = np.moveaxis(problem._candidates(LAG, w_c, z_c), 0, 2)  # (rows, 3, m) -> (3, m, rows)
+    fast = np.moveaxis(fast, 0, 2)                             # -> (m, rows, 3)
     assert fast.shape == plain.shape
     for c in range(3):
         scale = np.max(np.abs(plain[..., c]))

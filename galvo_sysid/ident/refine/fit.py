@@ -49,6 +49,7 @@ from galvo_sysid.ident.refine.checks import (
 from galvo_sysid.ident.refine.joint import JointProblem, covariance
 from galvo_sysid.ident.refine.options import MAX_DAMPING, MIN_DAMPING, RefineOptions
 from galvo_sysid.ident.refine.profile import (
+    STRONG_EVIDENCE,
     ModeProfile,
     check_linearised,
     profile_modes,
@@ -191,7 +192,7 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
                            lag=lag_time_constant, lag_bounds=opt.lag_bounds)
     starts = _starts(joint, initial, x_init, band_list, lower, upper,
                      scan_points=opt.scan_points, damping_start=opt.damping_start,
-                     keep_initial_damping=opt.keep_initial_damping)
+                     keep_initial_damping=opt.keep_initial_damping, profiled=noisy)
     starts += [_start_vector(joint, model, lower, upper, damping_start=opt.damping_start,
                              lag=lag_time_constant, lag_bounds=opt.lag_bounds)
                for model in extra_starts]
@@ -230,10 +231,13 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
 def _starts(joint: JointProblem, initial: ModalModel, x_init: NDArray[np.float64],
             band_list: Sequence[tuple[float, float]], lower: NDArray[np.float64],
             upper: NDArray[np.float64], *, scan_points: int, damping_start: float,
-            keep_initial_damping: bool) -> list[NDArray[np.float64]]:
-    """The scanned start, and the initial model's (see the module docs)."""
+            keep_initial_damping: bool, profiled: bool) -> list[NDArray[np.float64]]:
+    """The scanned start, and the initial model's if the scan moved a mode by over 1 % (a
+    mode the profiles search again, when ``profiled``, does not count: see the module docs).
+    """  # noqa: D205
     omega0, zeta0, lag0 = joint.unpack(x_init)
     omega_scan = omega0.copy()
+    evidence = np.full(omega0.size, np.inf)
     if scan_points > 1:
         # The other modes keep the initial model's damping (inflating a strongly excited mode's
         # damping would leave a misfit the scanned mode then chases).
@@ -245,8 +249,15 @@ def _starts(joint: JointProblem, initial: ModalModel, x_init: NDArray[np.float64
             z_c = np.concatenate([[zeta_init[i]], np.full(grid.size, damping_start)])
             gains = sum(wt * wt * prob.scan(i, omega_scan, zeta_init, lag0, w_c, z_c)[0]
                         for prob, wt in zip(joint.problems, joint.weights, strict=True))
-            omega_scan[i] = float(w_c[int(np.argmax(gains))])
-    moved = bool(omega0.size) and float(np.max(np.abs(np.log(omega_scan / omega0)))) > 0.01
+            best = int(np.argmax(gains))
+            omega_scan[i] = float(w_c[best])
+            evidence[i] = float(gains[best])
+    # A second start only where the scan moved a mode the profiles will not search again: a
+    # weakly excited mode's basin is searched over its whole band after the fit
+    # (:func:`profile_modes`), so its start alone is no reason for another polish.
+    searched = (evidence < STRONG_EVIDENCE) if profiled else np.zeros(omega0.size, dtype=bool)
+    shift = np.abs(np.log(omega_scan / omega0))
+    moved = bool(np.any((shift > 0.01) & ~searched))
     if keep_initial_damping:
         span = upper - lower
         as_is = joint.pack(np.array(initial.natural_frequencies, dtype=float),

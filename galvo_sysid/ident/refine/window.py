@@ -231,7 +231,7 @@ class WindowProblem:
     # -- scans -----------------------------------------------------------------------------
     def _candidates(self, lag: float, w_c: NDArray[np.float64],
                     z_c: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Whitened (forced, free cos, free sin) columns of candidate modes: (m, rows, 3).
+        """Whitened (forced, free cos, free sin) columns of candidate modes: (rows, 3, m).
 
         With a whitener, the rows past its head come from one transform per candidate (the
         filter folded into the convolution) and, for the free responses, in closed form
@@ -241,42 +241,52 @@ class WindowProblem:
         _, e = powers(w_c, z_c, self.n, self.t)
         h = self.regs.mode_impulses(w_c, z_c, lag, e)
         first, rows = self.first, self.k.size
+        m = h.shape[0]
         wh = self.whiten
         if wh is None or not wh.filter.size - 1 <= wh.order < rows:
-            forced = self.regs.convolve(h)[:, first:]
-            free = free_responses(w_c, z_c, self.n, self.t, e, first=first)
-            return self.apply_whitening(np.stack([forced, free[0::2], free[1::2]], axis=-1),
-                                        axis=1)
+            out = np.empty((rows, 3, m))
+            out[:, 0] = self.regs.convolve(h)[:, first:].T
+            out[:, 1] = e[:, first:].real.T
+            out[:, 2] = e[:, first:].imag.T
+            return self.apply_whitening(out)
         p = wh.order
         forced, filtered = self.regs.convolve_filtered(h, wh.filter)
-        m = h.shape[0]
-        out = np.empty((m, rows, 3))
-        head = np.empty((p, m, 3))  # the head's rows as one product
-        head[:, :, 0] = forced[:, first: first + p].T
-        head[:, :, 1] = e[:, first: first + p].real.T
-        head[:, :, 2] = e[:, first: first + p].imag.T
-        out[:, :p] = np.moveaxis((wh.head @ head.reshape(p, -1)).reshape(p, m, 3), 0, 1)
-        out[:, p:, 0] = filtered[:, first + p:]
         tail = wh.exponential_tail(e, first, rows)
-        out[:, p:, 1] = tail.real
-        out[:, p:, 2] = tail.imag
+        out = np.empty((rows, 3, m))
+        head = np.empty((p, 3, m))  # the head's rows as one product
+        head[:, 0] = forced[:, first: first + p].T
+        head[:, 1] = e[:, first: first + p].real.T
+        head[:, 2] = e[:, first: first + p].imag.T
+        out[:p] = (wh.head @ head.reshape(p, -1)).reshape(p, 3, m)
+        out[p:, 0] = filtered[:, first + p:].T
+        out[p:, 1] = tail.real.T
+        out[p:, 2] = tail.imag.T
         return out
 
     @staticmethod
     def _gains(others: NDArray[np.float64], y: NDArray[np.float64],
                cand: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(cost reduction, forced coefficient) of each candidate's 3 columns after others."""
+        """(cost reduction, forced coefficient) of each candidate's 3 columns after others.
+
+        ``cand`` is (rows, 3, m), as :meth:`_candidates` gives it.
+        """
         scale = np.linalg.norm(others, axis=0)
         scale[scale == 0] = 1.0
         q, _ = qr(others / scale, mode='economic', check_finite=False)
         r_o = y - q @ (q.T @ y)
-        c_o = cand - q @ (q.T @ cand)
-        gram = np.swapaxes(c_o, 1, 2) @ c_o
-        rhs = np.swapaxes(c_o, 1, 2) @ r_o
+        rows, _, m = cand.shape
+        flat = cand.reshape(rows, 3 * m)  # the candidates' columns: two products, not m
+        flat_o = flat - q @ (q.T @ flat)
+        c_o = flat_o.reshape(rows, 3, m)
+        gram = np.empty((m, 3, 3))
+        for i in range(3):
+            for j in range(i, 3):
+                gram[:, i, j] = gram[:, j, i] = np.einsum('ka,ka->a', c_o[:, i], c_o[:, j])
+        rhs = (r_o @ flat_o).reshape(3, m).T
         try:
             sol = np.linalg.solve(gram, rhs[..., None])[..., 0]
         except np.linalg.LinAlgError:
-            return np.full(cand.shape[0], -1.0), np.zeros(cand.shape[0])
+            return np.full(m, -1.0), np.zeros(m)
         gain = np.sum(rhs * sol, axis=1)
         gain[~np.isfinite(gain)] = -1.0
         return np.asarray(gain, dtype=np.float64), np.asarray(sol[:, 0], dtype=np.float64)
