@@ -123,6 +123,7 @@ class WindowProblem:
         self.n_linear = 1 + n_modes + 2 * n_modes + 2
         self._moves_regs: Regressors | None = None
         self._moves_enc: NDArray[np.float64] | None = None
+        self._deviations: tuple[bytes, NDArray[np.float64]] | None = None  # the last one
         self.set_whitening(None)
 
     # -- whitening -------------------------------------------------------------------------
@@ -314,9 +315,14 @@ class WindowProblem:
 
         By linearity this is the residual of the moves' deviations from the window mean, whose
         forced response is one convolution with the model's combined impulse response; the
-        deviations' transforms are computed once per window.
+        deviations' transforms are computed once per window. The last result is kept and
+        given again for the same arguments (read-only: the noise model, the covariance and the
+        adequacy check ask for the same one).
         """
         n = self.n_modes
+        key = b''.join(np.asarray(v, dtype=float).tobytes() for v in (omega, zeta, [lag], coef))
+        if self._deviations is not None and self._deviations[0] == key:
+            return self._deviations[1]
         if self._moves_regs is None:
             cur = self.cur
             self._moves_regs = Regressors(cur - cur.mean(axis=0), sample_period=self.t,
@@ -330,7 +336,10 @@ class WindowProblem:
             + coef[0] * lag * h_lag
         forced = regs.convolve(h[None, :])[0] \
             + coef[0] * (regs.rigid_double - lag * regs.rigid_single)
-        return np.asarray((enc_f - forced)[:, self.first:], dtype=np.float64)
+        dev = np.asarray((enc_f - forced)[:, self.first:], dtype=np.float64)
+        dev.flags.writeable = False
+        self._deviations = (key, dev)
+        return dev
 
     def noise(self, omega: NDArray[np.float64], zeta: NDArray[np.float64], lag: float,
               coef: NDArray[np.float64]) -> NDArray[np.float64]:
