@@ -198,7 +198,8 @@ class WindowProblem:
         n = self.n_modes
         h = 1e-6
         regs, first = self.regs, self.first
-        # all 2 n single-mode perturbations in one batch: omega_i e^h, then zeta_i e^h
+        # one batch: the 2 n single-mode perturbations (omega_i e^h, then zeta_i e^h) and the
+        # n modes at the point, which each difference is taken from
         w_p = np.concatenate([omega * math.exp(h), omega, omega])
         z_p = np.concatenate([zeta, zeta * math.exp(h), zeta])
         _, e = powers(w_p, z_p, self.n, self.t)
