@@ -9,6 +9,7 @@ declares the parameters with their ROS descriptors (:func:`descriptor`) and chec
 
 from __future__ import annotations
 
+import faulthandler
 import re
 import sys
 from typing import TYPE_CHECKING, Any
@@ -418,6 +419,11 @@ def _check_override(rule: str) -> None:
             f"quote text that looks like YAML: -p '{name}:=\"...\"'")
 
 
+STOP_REPORT_AFTER = 8.0
+"""Seconds a node's stop (its close, the node's and rclpy's shutdown) may take before it prints
+every thread's stack to stderr (a hang in the field, or a test's stop timeout, then says where)."""
+
+
 def run_node(factory: Callable[[], Node], *, args: Sequence[str] | None = None,
              threads: int = 1) -> int:
     """Create the node and spin it until Ctrl-C / SIGTERM; return an exit code.
@@ -461,10 +467,15 @@ def run_node(factory: Callable[[], Node], *, args: Sequence[str] | None = None,
         print(f'error: {one_line(err)}', file=sys.stderr)
         code = 2
     finally:
-        if node is not None:
-            close = getattr(node, 'close', None)
-            if callable(close):
-                close()
-            node.destroy_node()
-        try_shutdown()
+        # A stop that hangs says where (every thread's stack on stderr), then goes on waiting.
+        faulthandler.dump_traceback_later(STOP_REPORT_AFTER, exit=False)
+        try:
+            if node is not None:
+                close = getattr(node, 'close', None)
+                if callable(close):
+                    close()
+                node.destroy_node()
+            try_shutdown()
+        finally:
+            faulthandler.cancel_dump_traceback_later()
     return code

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 from galvo_sysid.monitor import parameters
 from galvo_sysid.nodes import framework
 
@@ -117,3 +120,54 @@ def test_a_spin_failing_on_a_shut_down_context_is_a_clean_stop() -> None:
     assert _spin_until_the_context_dies(fail_on_live=False) == 0
     with pytest.raises(_rclpy.RCLError):  # on a live context the error is not swallowed
         _spin_until_the_context_dies(fail_on_live=True)
+
+
+def test_a_stop_that_hangs_prints_every_threads_stack(tmp_path: Path) -> None:
+    """run_node in a process of its own: the node's close takes longer than
+    STOP_REPORT_AFTER (shortened), so the stacks go to stderr and the stop still ends."""
+    import subprocess
+    import textwrap
+
+    script = textwrap.dedent("""
+        import time
+        import rclpy
+        from rclpy.node import Node
+        from galvo_sysid.nodes import framework
+        framework.STOP_REPORT_AFTER = 0.2
+
+        class Slow(Node):
+            def close(self):
+                time.sleep(1.0)  # a hung stop
+
+        def spin(node):
+            rclpy.shutdown()  # as Ctrl-C does
+
+        framework.rclpy.spin = spin
+        raise SystemExit(framework.run_node(lambda: Slow('galvo_test_slow_stop'), args=[]))
+    """)
+    out = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
+                         timeout=60, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert 'Timeout (0:00:00.200000)!' in out.stderr
+    assert 'in close' in out.stderr  # the hung frame is named
+
+
+def test_a_quick_stop_prints_nothing(tmp_path: Path) -> None:
+    import subprocess
+    import textwrap
+
+    script = textwrap.dedent("""
+        import rclpy
+        from rclpy.node import Node
+        from galvo_sysid.nodes import framework
+
+        def spin(node):
+            rclpy.shutdown()
+
+        framework.rclpy.spin = spin
+        raise SystemExit(framework.run_node(lambda: Node('galvo_test_quick_stop'), args=[]))
+    """)
+    out = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
+                         timeout=60, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert 'Timeout' not in out.stderr
