@@ -107,6 +107,10 @@ class Proc:
             try:
                 self.popen.wait(timeout=timeout)
             except subprocess.TimeoutExpired:
+                # a hung stop: the node prints every thread's stack to its log first
+                self.popen.send_signal(signal.SIGUSR1)
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    self.popen.wait(timeout=1.0)
                 self.popen.kill()
                 self.popen.wait(timeout=10)
         self._reap_children()

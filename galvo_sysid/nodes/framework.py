@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import faulthandler
 import re
+import signal
 import sys
 from typing import TYPE_CHECKING, Any
 
@@ -430,7 +431,9 @@ def run_node(factory: Callable[[], Node], *, args: Sequence[str] | None = None,
 
     A configuration error (a parameter file that cannot be read or parsed, a bad ROS
     argument, an out-of-range value) is printed as one line and gives exit code 2; Ctrl-C
-    gives 0 without a traceback.
+    gives 0 without a traceback. A node that seems hung says where it is: ``kill -USR1 <pid>``
+    prints every thread's stack to stderr, and so does a stop that takes over
+    :data:`STOP_REPORT_AFTER`.
     """
     try:
         if args is not None:
@@ -445,6 +448,8 @@ def run_node(factory: Callable[[], Node], *, args: Sequence[str] | None = None,
         text = re.sub(r', at /\S+:\d+', '', text).removeprefix('failed to initialize rcl: ')
         print(f'error: {text}', file=sys.stderr)
         return 2
+    if hasattr(signal, 'SIGUSR1'):  # kill -USR1 <pid>: every thread's stack on stderr
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
     node: Node | None = None
     code = 0
     try:

@@ -171,3 +171,37 @@ def test_a_quick_stop_prints_nothing(tmp_path: Path) -> None:
                          timeout=60, cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     assert 'Timeout' not in out.stderr
+
+
+def test_sigusr1_prints_the_stacks_of_a_running_node(tmp_path: Path) -> None:
+    """``kill -USR1`` on a node that spins (here: a spin that sleeps) prints every thread's
+    stack, and the node goes on to stop cleanly."""
+    import signal
+    import subprocess
+    import textwrap
+    import time
+
+    script = textwrap.dedent("""
+        import time
+        import rclpy
+        from rclpy.node import Node
+        from galvo_sysid.nodes import framework
+
+        def spin(node):
+            print('spinning', flush=True)
+            time.sleep(3.0)  # a hang somewhere in the spin
+            rclpy.shutdown()
+
+        framework.rclpy.spin = spin
+        raise SystemExit(framework.run_node(lambda: Node('galvo_test_usr1'), args=[]))
+    """)
+    proc = subprocess.Popen([sys.executable, '-c', script], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    assert proc.stdout is not None
+    assert proc.stdout.readline().strip() == 'spinning'
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGUSR1)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    assert 'in spin' in err
+    assert 'Current thread' in err
