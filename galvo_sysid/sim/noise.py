@@ -20,6 +20,7 @@ scatter is itself checked.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import TYPE_CHECKING
 
@@ -32,6 +33,7 @@ from galvo_sysid.model.sampling import sample_plant
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
+    from galvo_sysid.model.physics import Physics
     from galvo_sysid.sim.config import SimulatorConfig
 
 __all__ = ['ar_coefficient', 'residual_noise_autocovariance']
@@ -49,14 +51,16 @@ def ar_coefficient(corner: float, sample_period: float) -> float:
     return 0.0 if math.isinf(corner) else math.exp(-2 * math.pi * corner * sample_period)
 
 
-def _disturbance_response(config: SimulatorConfig) -> NDArray[np.float64]:
+@functools.lru_cache(maxsize=16)
+def _disturbance_response(physics: Physics) -> NDArray[np.float64]:
     """Second-differenced encoder response to a unit current-noise sample, until it dies out.
+
+    Kept per plant (read-only): a benchmark asks for it once per simulated window.
 
     Raises:
         ConfigurationError: A nonlinear plant, or a response that does not die out (an
             undamped mode, e.g. an undamped pivot spring).
     """
-    physics = config.plant.physics()
     if not physics.linear:
         raise ConfigurationError('the exact residual noise needs a linear plant (no friction, '
                                  'saturation, cogging, encoder error or proposed terms)')
@@ -65,7 +69,7 @@ def _disturbance_response(config: SimulatorConfig) -> NDArray[np.float64]:
     drive = physics.gain_ratio * sp.g_d
     # The rigid body's double pole at 1 is cancelled by the second difference; the modes
     # decay as radius^k at the slowest.
-    modal = [abs(z) for z in np.linalg.eigvals(sp.phi) if abs(z - 1.0) > 1e-9]
+    modal = [abs(z) for z in np.linalg.eigvals(sp.phi) if abs(z - 1.0) > 1e-6]
     slowest = max(modal, default=0.0)
     if slowest >= 1.0:
         raise ConfigurationError('the plant has an undamped mode: its noise is not stationary')
@@ -77,8 +81,9 @@ def _disturbance_response(config: SimulatorConfig) -> NDArray[np.float64]:
     for k in range(1, ring + 2):
         h[k] = float(c @ x)
         x = sp.phi @ x
-    out = np.asarray(h[2:] - 2.0 * h[1:-1] + h[:-2], dtype=np.float64)
-    return np.concatenate([[h[0]], [h[1] - 2.0 * h[0]], out])
+    out = np.concatenate([[h[0]], [h[1] - 2.0 * h[0]], h[2:] - 2.0 * h[1:-1] + h[:-2]])
+    out.flags.writeable = False
+    return out
 
 
 def residual_noise_autocovariance(config: SimulatorConfig, lags: int) -> NDArray[np.float64]:
@@ -93,10 +98,12 @@ def residual_noise_autocovariance(config: SimulatorConfig, lags: int) -> NDArray
         r[0..lags-1] [deg^2], of the second difference of the encoder per sample.
 
     Raises:
-        ConfigurationError: A nonlinear plant or an undamped mode.
+        ConfigurationError: A nonlinear plant, an undamped mode, or fewer than one lag.
     """
+    if isinstance(lags, bool) or not isinstance(lags, int) or lags < 1:
+        raise ConfigurationError(f'lags must be a whole number >= 1, got {lags!r}')
     t = config.sample_period
-    g = _disturbance_response(config)
+    g = _disturbance_response(config.plant.physics())
     a_i = ar_coefficient(config.current_noise_corner, t)
     g = lfilter([math.sqrt(1.0 - a_i * a_i) * config.current_noise_std], [1.0, -a_i], g)
     size = 1 << math.ceil(math.log2(2 * max(g.size, lags)))

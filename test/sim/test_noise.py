@@ -62,3 +62,9 @@ def test_exact_noise_refuses_a_nonlinear_plant() -> None:
     plant = PAPER_MODEL.with_effect('coulomb_friction', {'friction_current': 0.01})
     with pytest.raises(ConfigurationError, match='linear'):
         residual_noise_autocovariance(SimulatorConfig(plant=plant), 10)
+
+
+@pytest.mark.parametrize('lags', [0, -3, 2.5, True])
+def test_bad_lags_are_refused(lags: object) -> None:
+    with pytest.raises(ConfigurationError, match='lags'):
+        residual_noise_autocovariance(SimulatorConfig(), lags)  # type: ignore[arg-type]
