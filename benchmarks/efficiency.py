@@ -40,7 +40,7 @@ tests by sampling alone, with this many seeds, is printed last (about 0.03 per p
 100 seeds, 0.14 at 40, 0.57 at 8): read a FAIL with it, and with the bias and max |error| /
 bound columns.
 
-Usage (from the repository root; about 7 minutes for the default 100 seeds, 2 processes)::
+Usage (from the repository root; about 4 minutes for the default 100 seeds, 2 processes)::
 
     python benchmarks/efficiency.py
     python benchmarks/efficiency.py --seeds 8 --scanners 0 1
