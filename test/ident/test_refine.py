@@ -473,3 +473,26 @@ def test_the_profile_search_leaves_a_wrong_basin_for_the_better_one(case: str) -
     np.testing.assert_allclose(joint.unpack(found)[0], joint.unpack(best)[0], rtol=1e-4)
     assert joint.cost(found) == pytest.approx(joint.cost(best), abs=1e-3)
     assert all(p.better is None for p in profiles)  # the profiles of the new optimum
+
+
+def test_the_evidence_of_every_mode_from_one_factorisation_is_the_scan_at_its_point() -> None:
+    """``evidence`` (one QR per window, the drop in cost of each mode's column group) gives
+    what a one-candidate scan of each mode at its own point gives, on one window and on two
+    windows weighed differently, at the truth and at a point off it (a mode whose columns
+    explain little, the third, included)."""
+    from galvo_sysid.ident.refine.profile import _scan, evidence
+
+    r = REFERENCE_MODEL
+    one = [simulate_window(PSI, moves=30, seed=3)]
+    two = [*one, simulate_window(0.5, moves=30, seed=4)]
+    for windows in (one, two):
+        joint, _, _ = _fit_problem(windows)
+        joint.set_weights(joint.weights * np.array([1.0, 2.0])[: len(windows)])
+        for shift in (1.0, 1.02):
+            omega = np.array(r.natural_frequencies) * shift
+            zeta = np.array(r.damping_ratios)
+            got = evidence(joint, omega, zeta, 0.6 * TAU)
+            want = [_scan(joint, i, omega, zeta, 0.6 * TAU, omega[i:i + 1], zeta[i:i + 1])[0][0]
+                    for i in range(r.n_modes)]
+            np.testing.assert_allclose(got, want, rtol=1e-9)
+            assert min(got) > 0

@@ -91,3 +91,41 @@ def test_cached_columns_follow_the_whitening(problem: WindowProblem) -> None:
     assert np.allclose(problem.columns(omega, zeta, LAG), first)
     other = problem.columns(omega * 1.01, zeta, LAG)
     assert not np.allclose(other, first)
+
+
+@pytest.mark.parametrize('columns', [1, 47, 48, 300])
+@pytest.mark.parametrize('rows', [5, 130])
+def test_lower_times_is_the_product_with_the_lower_triangle(rows: int, columns: int) -> None:
+    """Both paths of ``lower_times`` (a plain product for few columns, BLAS trmm for many)
+    give ``L @ A`` for a lower-triangular L, also for a Fortran-ordered ``A``, and a
+    Whitener's ``apply`` (head rows, then the FIR filter) is its definition."""
+    from galvo_sysid.ident.refine.whitener import lower_times
+
+    rng = np.random.default_rng(rows + columns)
+    low = np.tril(rng.standard_normal((rows, rows)))
+    arr = rng.standard_normal((columns, rows)).T  # Fortran-ordered
+    want = low @ arr
+    np.testing.assert_allclose(lower_times(low, arr), want, rtol=1e-12, atol=1e-12)
+    filt = rng.standard_normal(4)
+    wh = Whitener(low, filt[: min(4, rows + 1)])
+    direct = np.array([np.convolve(col, wh.filter)[: 2 * rows] for col in
+                       np.vstack([arr, arr]).T]).T
+    direct[:rows] = want
+    np.testing.assert_allclose(wh.apply(np.vstack([arr, arr])), direct, rtol=1e-10,
+                               atol=1e-10)
+
+
+def test_then_is_the_two_maps_in_turn() -> None:
+    """A composed whitener maps any record (shorter or longer than its head) as the first
+    map and then the second, and ``matrix`` is the map as a matrix."""
+    first = Whitener.from_autocovariance(np.exp(-np.arange(12) / 3.0) * np.cos(np.arange(12)))
+    second = Whitener.from_autocovariance(np.exp(-np.arange(7) / 2.0))
+    both = first.then(second)
+    assert both.order == first.order + second.order
+    rng = np.random.default_rng(5)
+    for rows in (10, 40):
+        rec = rng.standard_normal((rows, 3))
+        np.testing.assert_allclose(both.apply(rec), second.apply(first.apply(rec)),
+                                   rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(first.matrix(rows) @ rec, first.apply(rec), rtol=1e-12,
+                                   atol=1e-12)

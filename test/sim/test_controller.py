@@ -159,3 +159,16 @@ def test_a_model_without_a_stable_design_is_refused() -> None:
         damping_ratios=(0.001, 7.723e-3, 4.579e-3)))
     with pytest.raises(ConfigurationError, match='no stable positioning controller'):
         design_controller(hopeless)
+
+
+def test_the_automatic_design_is_kept_per_model() -> None:
+    """The same model gets the same (immutable) controller without a second design; another
+    model its own, and an explicit config is designed as asked."""
+    from galvo_sysid.sim.family import random_scanner
+
+    assert design_controller(PAPER_MODEL) is design_controller(PAPER_MODEL)
+    other = random_scanner(1).model
+    assert design_controller(other) == design_controller(other)
+    assert design_controller(other) != design_controller(PAPER_MODEL)
+    cfg = ControllerConfig(crossover_frequency=400.0)
+    assert design_controller(PAPER_MODEL, config=cfg) != design_controller(PAPER_MODEL)

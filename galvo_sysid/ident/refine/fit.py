@@ -18,7 +18,9 @@ resolves a mode no single window does. Both run the same steps (the tuning is
    the stationary noise whose autocovariance the moves' scatter gives, without what each
    move's own initial conditions explain), and each window is weighed by its noise. With the
    right noise model this is the maximum-likelihood fit, and its ``A^-1`` the Cramer-Rao
-   bound.
+   bound. Stage 1 only has to find the basin (it ends at a relative cost change of
+   ``_STAGE1_TOL``); stage 2 ends when a step lowers the cost by less than
+   :data:`CHI2_STEP` noise units, a tenth of a std from the optimum.
 3. **Profiles** (:mod:`~galvo_sysid.ident.refine.profile`): a weakly excited mode is scanned
    over its band: a better basin is polished, its std widened to the plausible region.
 4. **Checks.** A resolved mode ending at its band edge, or a residual between the band edges
@@ -68,7 +70,15 @@ if TYPE_CHECKING:
 
 __all__ = ['refine_fit', 'refine_joint']
 
-_STAGE1_TOL = 1e-5
+_STAGE1_TOL = 1e-3
+"""Relative cost change that ends stage 1 when stage 2 follows: it only has to find the basin
+(1e-5 took a fifth more evaluations for the same estimates, benchmarks/efficiency.py)."""
+
+CHI2_STEP = 0.01
+"""The prewhitened polish ends when a step lowers the cost (in noise units) by less than this:
+the estimates then lie within about a tenth of their std of the optimum (a cost rise of 1 is
+one std), and a weakly excited mode's slow creep along its flat valley is not chased to
+1e-8 of the cost."""
 _DEFAULT_DYNAMICS = InputDynamics()
 _DEFAULT_OPTIONS = RefineOptions()
 _JOINT_OPTIONS = RefineOptions(adequacy_limit=0.0)
@@ -200,7 +210,10 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
     # Stage 1 only has to find the basin when the prewhitened stage 2 polishes afterwards.
     tol = _STAGE1_TOL if two_stage else 1e-8
 
-    def polish(x0: NDArray[np.float64], tol: float = 1e-8) -> NDArray[np.float64]:
+    final_tol = [1e-8]  # set to CHI2_STEP's share of the cost once the cost is in noise units
+
+    def polish(x0: NDArray[np.float64], tol: float | None = None) -> NDArray[np.float64]:
+        tol = final_tol[0] if tol is None else tol
         try:
             sol = least_squares(joint.residual, x0, jac=joint.jacobian, bounds=(lower, upper),
                                 x_scale='jac', max_nfev=opt.max_nfev, method='trf', ftol=tol,
@@ -219,6 +232,7 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
     x = best[1] if best is not None else starts[0]
     if two_stage:
         joint.prewhiten(x, whiten_order)
+        final_tol[0] = max(1e-8, CHI2_STEP / max(joint.cost(x), 1.0))
         x = polish(x)
     profiles: list[ModeProfile] = []
     if noisy and n:

@@ -147,6 +147,18 @@ class JointProblem:
         self.n_eval += 1
         n = self.n_modes
         omega, zeta, lag = self.unpack(x)
+        if len(self.problems) == 1:  # one window: one factorisation of all its columns
+            prob, wt = self.problems[0], float(self.weights[0])
+            phi = prob.columns(omega, zeta, lag)
+            scale = np.linalg.norm(phi, axis=0)
+            scale[scale == 0] = 1.0
+            q, r = qr(phi / scale, mode='economic', check_finite=False)
+            qty = q.T @ prob.yf
+            coef = solve_triangular(r, qty, check_finite=False) / scale
+            self._key = key
+            self._cache = (coef[: 1 + n], wt * (prob.yf - q @ qty))
+            self._parts = ([(q, coef)], np.zeros((0, 0)))
+            return self._cache
         f_parts, y_parts = [], []
         parts: list[tuple[NDArray[np.float64], ...]] = []
         for prob, wt in zip(self.problems, self.weights, strict=True):
@@ -190,6 +202,11 @@ class JointProblem:
         parts, q_f = self._parts
         n = self.n_modes
         omega, zeta, lag = self.unpack(x)
+        if len(self.problems) == 1:  # P: the complement of all the window's columns
+            prob, wt = self.problems[0], float(self.weights[0])
+            q, coef = parts[0]
+            v = prob.model_derivatives(omega, zeta, lag, coef, lag_free=self.estimate_lag)
+            return np.asarray(-wt * (v - q @ (q.T @ v)) / self.y_scale, dtype=np.float64)
         v_parts = []
         for prob, wt, (phi, q, r, scale) in zip(self.problems, self.weights, parts,
                                                  strict=True):
@@ -207,6 +224,8 @@ class JointProblem:
         n = self.n_modes
         omega, zeta, lag = self.unpack(x)
         shared = self.solve(x)[0]
+        if len(self.problems) == 1:
+            return [self._parts[0][0][1].copy()]
         out = []
         for prob in self.problems:
             phi = prob.columns(omega, zeta, lag)

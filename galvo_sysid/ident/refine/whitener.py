@@ -16,7 +16,8 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.linalg import cholesky, solve_triangular
+from scipy.linalg import cholesky, solve_triangular, toeplitz
+from scipy.linalg.blas import dtrmm
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -75,8 +76,23 @@ class Whitener:
     def then(self, outer: Whitener) -> Whitener:
         """The map ``outer`` after this one, as one whitener."""
         size = self.head.shape[0] + outer.head.shape[0]
-        head = outer.apply(self.apply(np.eye(size)))
+        head = lower_times(outer.matrix(size), self.matrix(size))
         return Whitener(np.tril(head), np.convolve(outer.filter, self.filter))
+
+    def matrix(self, rows: int) -> NDArray[np.float64]:
+        """The map on a record of ``rows`` samples as a (rows, rows) lower-triangular matrix:
+        the head's rows, then the FIR filter's (as :meth:`apply` maps it)."""  # noqa: D205, D209
+        column = np.zeros(rows)
+        column[: self.filter.size] = self.filter[:rows]
+        out = toeplitz(column, np.zeros(rows))
+        p = min(self.order, rows)
+        out[:p, :p] = self.head[:p, :p]
+        return np.asarray(out, dtype=np.float64)
+
+    def head_times(self, arr: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``head @ arr`` for ``arr`` of (h, k) rows: a triangular product (BLAS ``trmm``,
+        about a quarter faster than a full one for the scans' hundreds of columns)."""  # noqa: D205, D209
+        return lower_times(self.head, arr)
 
     @property
     def order(self) -> int:
@@ -111,8 +127,26 @@ class Whitener:
         out = np.fft.irfft(np.fft.rfft(moved, size, axis=0) * spectrum.reshape(shape), size,
                            axis=0)[:n]
         p = min(self.head.shape[0], n)
-        out[:p] = np.tensordot(self.head[:p, :p], moved[:p], axes=1)
+        rest = moved.shape[1:]
+        out[:p] = lower_times(self.head[:p, :p], moved[:p].reshape(p, -1)).reshape((p, *rest))
         return np.moveaxis(out, 0, axis)
+
+
+_TRMM_COLUMNS = 48  # from this many columns on a triangular product beats a full one
+
+
+def lower_times(lower: NDArray[np.float64], arr: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``lower @ arr`` for a lower-triangular (p, p) ``lower`` and (p, k) ``arr``.
+
+    Many columns: BLAS ``trmm`` on the transposes (``arr^T lower^T``: C-ordered arrays are
+    then Fortran-ordered, so nothing is copied on the way in), which skips the zeros above the
+    diagonal; few: a plain product (``trmm``'s set-up costs more than it saves).
+    """
+    if arr.shape[1] < _TRMM_COLUMNS or lower.shape[0] < _TRMM_COLUMNS:
+        return np.asarray(lower @ arr, dtype=np.float64)
+    lower = np.ascontiguousarray(lower, dtype=np.float64)
+    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    return np.asarray(dtrmm(1.0, lower.T, arr.T, side=1, lower=0).T, dtype=np.float64)
 
 
 def _fft_size(n: int) -> int:
@@ -290,7 +324,7 @@ def stationary_noise_model(dev: NDArray[np.float64], nuisance: NDArray[np.float6
         # second.apply(x) from x's transform (the filter has order + 1 taps: same size)
         out = np.asarray(np.fft.irfft(f_x * np.fft.rfft(second.filter, size)[:, None], size,
                                       axis=0)[:n], dtype=np.float64)
-        out[:rows] = second.head[:rows, :rows] @ x[:rows]
+        out[:rows] = lower_times(second.head[:rows, :rows], x[:rows])
         return out
 
     result: tuple[WhitenerChain, float] | None = None

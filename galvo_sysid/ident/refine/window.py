@@ -259,7 +259,7 @@ class WindowProblem:
         head[:, 0] = forced[:, first: first + p].T
         head[:, 1] = e[:, first: first + p].real.T
         head[:, 2] = e[:, first: first + p].imag.T
-        out[:p] = (wh.head @ head.reshape(p, -1)).reshape(p, 3, m)
+        out[:p] = wh.head_times(head.reshape(p, -1)).reshape(p, 3, m)
         out[p:, 0] = filtered[:, first + p:].T
         out[p:, 1] = tail.real.T
         out[p:, 2] = tail.imag.T
