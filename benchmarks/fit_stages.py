@@ -1,8 +1,19 @@
 """Where a window's refined fit spends its time: the stages of ``identify_window``, per window.
 
-Simulates single windows of 100 moves of the paper's scanner (the paper's 19 angles, noise
-seeds 0..``--windows``-1 in turn), identifies each with ``identify_window`` (the sysid node's
-default, the refined fit), and times each stage by wrapping the functions that run it:
+Simulates single windows of 100 moves and identifies each with ``identify_window`` (the
+sysid node's default, the refined fit), one at a time in one process (the time a window takes
+on this machine when its fit is the only job; ``benchmarks/efficiency.py`` runs two fits at
+once and prints their wall time too, which the other fit's use of the memory bus lengthens by
+about a tenth):
+
+- by default, windows of the paper's scanner (the paper's 19 angles, noise seeds
+  0..``--windows``-1 in turn);
+- with ``--family``, issue 13's benchmark family: each condition of
+  ``benchmarks/efficiency.py`` (moves, controllers, noise, scanners of the generated family)
+  with noise seeds 0..``--windows``-1, identified with the condition's true model as the
+  scanner's model, as there. The median over all of them is issue 13's "time per window".
+
+Each stage is timed by wrapping the functions that run it:
 
 - ``screen``: the moves' screening (:func:`galvo_sysid.ident.identify._screen`);
 - ``start (ARX)``: the paper pipeline whose model starts the fit;
@@ -20,7 +31,8 @@ profiled line by line (``pip install line_profiler``; not a dependency of the pr
     python -m cProfile -o /tmp/fit.prof benchmarks/fit_stages.py --windows 10
     python -c "import pstats; pstats.Stats('/tmp/fit.prof').sort_stats('tottime').print_stats(30)"
 
-Usage: ``.venv/bin/python benchmarks/fit_stages.py [--windows 20]``.
+Usage: ``.venv/bin/python benchmarks/fit_stages.py [--windows 20] [--family]`` (``--family``
+with ``--windows 3``: 42 windows, about 10 s).
 """
 
 from __future__ import annotations
@@ -33,6 +45,8 @@ os.environ.setdefault('OMP_NUM_THREADS', '1')
 import argparse
 import collections
 import datetime
+import functools
+import importlib.util
 import statistics
 import sys
 import time
@@ -79,21 +93,27 @@ def main() -> int:
     keep_freed_memory()  # as the entry points do: the fits reuse freed memory
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('--windows', type=int, default=20, help='windows to fit')
+    parser.add_argument('--windows', type=int, default=20,
+                        help='windows to fit (with --family: noise seeds per condition)')
+    parser.add_argument('--family', action='store_true',
+                        help="issue 13's benchmark family (efficiency.py's conditions)")
     args = parser.parse_args()
+    if args.windows < 1:
+        parser.error('--windows must be at least 1')
     load = ', '.join(f'{x:.2f}' for x in os.getloadavg())
-    print(f'fit stages of identify_window (refined), {args.windows} windows of 100 moves, '
-          f'paper scanner; {datetime.datetime.now().isoformat(timespec="seconds")}, load '
-          f'average {load}\n')
-    angles = [PAPER_ANGLES[i % len(PAPER_ANGLES)] for i in range(args.windows)]
-    windows = [simulate_window(a, moves=100, seed=i) for i, a in enumerate(angles)]
-    identify_module.identify_window(*windows[0], sample_period=TAU)  # imports, caches
+    windows = _family(args.windows) if args.family else _paper(args.windows)
+    what = (f'{args.windows} noise seeds of each condition of efficiency.py' if args.family
+            else 'paper scanner')
+    print(f'fit stages of identify_window (refined), {len(windows)} windows of 100 moves, '
+          f'{what}; {datetime.datetime.now().isoformat(timespec="seconds")}, load average '
+          f'{load}\n')
+    windows[0]()  # imports, caches
     for owner, name, stage in STAGES:
         setattr(owner, name, _timed(getattr(owner, name), stage))
     totals = []
-    for current, encoder in windows:
+    for fit in windows:
         start = time.perf_counter()
-        identify_module.identify_window(current, encoder, sample_period=TAU)
+        fit()
         totals.append(time.perf_counter() - start)
     n = len(windows)
     total = sum(totals)
@@ -107,6 +127,36 @@ def main() -> int:
           f'{1e3 * statistics.median(totals):.1f} ms (target of issue 13: < 60 ms); load '
           f'average at the end {os.getloadavg()[0]:.2f}')
     return 0
+
+
+def _paper(count: int) -> list[Any]:
+    """Fits of paper-scanner windows (19 angles in turn, seeds 0..count-1)."""
+    out = []
+    for i in range(count):
+        cur, enc = simulate_window(PAPER_ANGLES[i % len(PAPER_ANGLES)], moves=100, seed=i)
+        out.append(functools.partial(identify_module.identify_window, cur, enc,
+                                     sample_period=TAU))
+    return out
+
+
+def _family(seeds: int) -> list[Any]:
+    """Fits of efficiency.py's conditions, seeds 0..seeds-1 each, as efficiency.py fits them."""
+    path = Path(__file__).resolve().parent / 'efficiency.py'
+    spec = importlib.util.spec_from_file_location('benchmark_efficiency', path)
+    assert spec is not None
+    assert spec.loader is not None
+    eff = importlib.util.module_from_spec(spec)
+    sys.modules['benchmark_efficiency'] = eff
+    spec.loader.exec_module(eff)
+    out = []
+    for cond in eff.conditions():
+        truth = cond.truth
+        for seed in range(seeds):
+            cur, enc = simulate_window(cond.angle, moves=100, seed=seed, config=cond.config)
+            out.append(functools.partial(identify_module.identify_window, cur, enc,
+                                         sample_period=truth.sample_period, model=truth,
+                                         target_angle=cond.angle))
+    return out
 
 
 if __name__ == '__main__':

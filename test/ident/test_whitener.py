@@ -129,3 +129,21 @@ def test_then_is_the_two_maps_in_turn() -> None:
                                    rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(first.matrix(rows) @ rec, first.apply(rec), rtol=1e-12,
                                    atol=1e-12)
+
+
+def test_the_moves_regressors_are_kept_for_the_same_records_only() -> None:
+    """The screening and the fit of a window share its moves' transforms; other records, a
+    changed sample or another delay get their own (the kept ones are not stale)."""
+    from galvo_sysid.ident.refine.window import _moves_regressors
+
+    cur, _ = simulate_window(PSI, moves=12, seed=2)
+    first = _moves_regressors(cur, sample_period=TAU, delay=1, fraction=0.0)
+    assert _moves_regressors(cur.copy(), sample_period=TAU, delay=1, fraction=0.0) is first
+    changed = cur.copy()
+    changed[3, 40] += 1e-3
+    other = _moves_regressors(changed, sample_period=TAU, delay=1, fraction=0.0)
+    assert other is not first
+    assert not np.allclose(other.uf, first.uf)
+    assert _moves_regressors(changed, sample_period=TAU, delay=2, fraction=0.0) is not other
+    cur[0, 0] += 1.0  # the caller's array changed in place after the call
+    assert _moves_regressors(cur, sample_period=TAU, delay=1, fraction=0.0) is not first

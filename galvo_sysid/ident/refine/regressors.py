@@ -132,10 +132,11 @@ class Regressors:
         """  # noqa: D205
         if self.uf_hat.ndim != 1:
             raise ConfigurationError('convolve_filtered needs a single input record')
-        if self._taps_cache is None or self._taps_cache[0] is not taps:
-            self._taps_cache = (taps, sp_fft.rfft(taps, self.nfft))
+        cached = self._taps_cache  # read once (see lag_impulse)
+        if cached is None or cached[0] is not taps:
+            cached = self._taps_cache = (taps, sp_fft.rfft(taps, self.nfft))
         prod = sp_fft.rfft(h, self.nfft, axis=-1) * self.uf_hat
-        both = sp_fft.irfft(np.stack([prod, prod * self._taps_cache[1]]), self.nfft,
+        both = sp_fft.irfft(np.stack([prod, prod * cached[1]]), self.nfft,
                             axis=-1)[..., : self.n]
         return np.asarray(both[0], dtype=np.float64), np.asarray(both[1], dtype=np.float64)
 
@@ -165,8 +166,9 @@ class Regressors:
         The last one is cached (each evaluation asks for the same lag several times); the
         caller must not modify the returned array.
         """
-        if self._lag_cache is not None and self._lag_cache[0] == lag:
-            return self._lag_cache[1]
+        cached = self._lag_cache  # read once: a Regressors may be shared between threads
+        if cached is not None and cached[0] == lag:
+            return cached[1]
         h = np.zeros(self.n)
         if lag > 0:
             g1, g2 = pulse_numerator(-1.0 / lag, self.fraction, self.t)

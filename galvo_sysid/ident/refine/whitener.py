@@ -16,8 +16,9 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.linalg import cholesky, solve_triangular, toeplitz
+from scipy.linalg import toeplitz
 from scipy.linalg.blas import dtrmm
+from scipy.linalg.lapack import dpotrf, dtrtri
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -235,9 +236,11 @@ def _levinson(autocovariance: NDArray[np.float64]) -> Whitener:
     r = np.asarray(autocovariance, dtype=float)
     order = r.size - 1
     if order <= _CHOLESKY_ORDER:
-        toeplitz = r[np.abs(np.arange(order + 1)[:, None] - np.arange(order + 1)[None, :])]
-        chol = cholesky(toeplitz, lower=True, check_finite=False)
-        rows = solve_triangular(chol, np.eye(order + 1), lower=True, check_finite=False)
+        chol, info = dpotrf(toeplitz(r), lower=1, clean=1, overwrite_a=1)
+        if info == 0:
+            rows, info = dtrtri(chol, lower=1, overwrite_c=1)
+        if info != 0:
+            raise np.linalg.LinAlgError('the autocovariance is not positive definite')
         return Whitener(np.tril(rows[:order, :order]), rows[order, ::-1].copy())
     head = np.zeros((order, order))
     a = np.zeros(order + 1)

@@ -95,6 +95,28 @@ def window_records(windows: Sequence[tuple[ArrayLike, ArrayLike]], min_moves: in
     return out
 
 
+_LAST_MOVES: list[tuple[tuple[float, int, float], NDArray[np.float64], Regressors]] = []
+
+
+def _moves_regressors(cur: NDArray[np.float64], *, sample_period: float, delay: int,
+                      fraction: float) -> Regressors:
+    """The moves' deviations from their mean current as :class:`Regressors`.
+
+    The last one is kept (read-only; a copy of its records is compared, about 20 us): the
+    screening of a window (:func:`~galvo_sysid.ident.screen.screen_moves`) and its fit ask
+    for the same one, about 1 ms of transforms for 100 moves.
+    """
+    key = (float(sample_period), int(delay), float(fraction))
+    last = _LAST_MOVES[0] if _LAST_MOVES else None
+    if last is not None and last[0] == key and last[1].shape == cur.shape \
+            and np.array_equal(last[1], cur):
+        return last[2]
+    regs = Regressors(cur - cur.mean(axis=0), sample_period=sample_period, delay=delay,
+                      fraction=fraction, pre=cur[:, -1:] - cur[:, -1].mean())
+    _LAST_MOVES[:] = [(key, np.array(cur, dtype=float), regs)]
+    return regs
+
+
 class WindowProblem:
     """A window's averaged moves, its columns and its moves' scatter (see the module docs).
 
@@ -325,10 +347,9 @@ class WindowProblem:
         if self._deviations is not None and self._deviations[0] == key:
             return self._deviations[1]
         if self._moves_regs is None:
-            cur = self.cur
-            self._moves_regs = Regressors(cur - cur.mean(axis=0), sample_period=self.t,
-                                          delay=self.regs.delay, fraction=self.regs.fraction,
-                                          pre=cur[:, -1:] - cur[:, -1].mean())
+            self._moves_regs = _moves_regressors(self.cur, sample_period=self.t,
+                                                 delay=self.regs.delay,
+                                                 fraction=self.regs.fraction)
             self._moves_enc = second_difference(self.enc - self.enc.mean(axis=0))
         regs, enc_f = self._moves_regs, self._moves_enc
         assert enc_f is not None
