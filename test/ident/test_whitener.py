@@ -147,3 +147,30 @@ def test_the_moves_regressors_are_kept_for_the_same_records_only() -> None:
     assert _moves_regressors(changed, sample_period=TAU, delay=2, fraction=0.0) is not other
     cur[0, 0] += 1.0  # the caller's array changed in place after the call
     assert _moves_regressors(cur, sample_period=TAU, delay=1, fraction=0.0) is not first
+
+
+def test_one_whitener_of_a_chain_is_its_noise_model() -> None:
+    """Two short stages in series whiten an AR noise of their summed order: one whitener of
+    at least that many lags has their filters in series as its filter (scaled so the noise
+    leaves it with the returned variance), nothing beyond; with fewer lags it is the best
+    predictor of that order: its output on a long record of the noise is nearly white with
+    that variance."""
+    from galvo_sysid.ident.refine.whitener import WhitenerChain
+
+    first = Whitener.from_autocovariance(np.array([1.0, 0.8, 0.5, 0.3]))
+    second = Whitener.from_autocovariance(np.array([1.0, -0.4, 0.1]))
+    chain = WhitenerChain(first, second)
+    single, variance = chain.single(9)
+    series = np.convolve(first.filter, second.filter)
+    np.testing.assert_allclose(single.filter[: series.size], np.sqrt(variance) * series,
+                               rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(single.filter[series.size:], 0.0, atol=1e-9)
+    # the noise itself: white noise through the inverse of the series filter
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(3)
+    noise = lfilter([1.0], series, rng.standard_normal(200_000))
+    short, var_short = chain.single(3)
+    out = short.apply(noise)[1000:]
+    assert np.var(out) == pytest.approx(var_short, rel=0.03)
+    np.testing.assert_allclose(chain.apply(noise)[1000:].var(), 1.0, rtol=0.02)

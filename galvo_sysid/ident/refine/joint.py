@@ -77,7 +77,13 @@ class JointProblem:
         short record where a mode rings through, it fills the valley the mode's antiresonance
         cuts into the noise spectrum, and the fit weighs down the rows that carry the mode:
         omega_1 of ``random_scanner(1)`` came out with 6 times the bound's rms error, now
-        1.3.) Where that model cannot be made, the deviations' two-pass model whole
+        1.3.) The window is whitened by one map of that model: its prediction-error map with
+        as many lags as the first pass
+        (:meth:`~galvo_sysid.ident.refine.whitener.WhitenerChain.single`; the two passes composed
+        have both passes' lags, a head of rows half again as long for the same estimates:
+        ``benchmarks/efficiency.py`` gave the same errors and bounds to a few percent, each
+        window's fit 8 % faster). Where that model cannot be made, the deviations' two-pass
+        model whole
         (:func:`~galvo_sysid.ident.refine.whitener.noise_whitener`); a window without noise
         is left unwhitened. Sets :attr:`stationary` when every window has the first kind:
         the fit's ``A`` is then the Fisher information (see :func:`covariance`).
@@ -94,8 +100,9 @@ class JointProblem:
                 dev, nuis, max(order, dev.shape[1] // BOUND_ORDER_DIVISOR), second_order=order)
             if found is not None:
                 chain, var = found
-                prob.set_whitening(chain.stages[0].then(chain.stages[1]))
-                weights.append(1.0 / max(math.sqrt(var / (prob.moves - 1)), 1e-300))
+                single, factor = chain.single(max(order, dev.shape[1] // BOUND_ORDER_DIVISOR))
+                prob.set_whitening(single)
+                weights.append(1.0 / max(math.sqrt(var * factor / (prob.moves - 1)), 1e-300))
                 continue
             stationary = False
             prob.set_whitening(noise_whitener(dev, order,

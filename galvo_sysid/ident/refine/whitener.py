@@ -227,6 +227,24 @@ class WhitenerChain:
             out = stage.apply(out, axis=axis)
         return out
 
+    def single(self, lags: int) -> tuple[Whitener, float]:
+        """One whitener of ``lags`` lags for the noise the stages whiten, and its variance.
+
+        The noise the stages map to white noise has the spectrum ``1 / |A(f)|^2``, A the
+        stages' filters in series; its autocovariance up to ``lags`` gives the exact
+        prediction-error map of that order (:func:`_levinson`). Returns the map and the factor
+        by which its output's variance exceeds the stages' (the autocovariance's lag 0): the
+        same noise model to that many lags, with a head of ``lags`` rows instead of the sum
+        of the stages' (the fit whitens every column with the head).
+        """
+        taps = sum(stage.filter.size for stage in self.stages)
+        grid = _fft_size(max(8192, 16 * taps))
+        gain = np.ones(grid // 2 + 1)
+        for stage in self.stages:
+            gain *= np.abs(np.fft.rfft(stage.filter, grid)) ** 2
+        r = np.fft.irfft(1.0 / gain, grid)[: lags + 1]
+        return _levinson(_normalised(r)), float(r[0])
+
 
 def _levinson(autocovariance: NDArray[np.float64]) -> Whitener:
     """:meth:`Whitener.from_autocovariance`, faster for the bound's repeated noise models (the
