@@ -93,6 +93,35 @@ def test_cached_columns_follow_the_whitening(problem: WindowProblem) -> None:
     assert not np.allclose(other, first)
 
 
+def test_kept_derivatives_follow_their_arguments_and_the_whitening(
+        problem: WindowProblem) -> None:
+    """The last derivatives are given again for the same point, coefficients and kind; a
+    change of any of them, or of the whitening, computes them anew (a stale Jacobian would
+    silently misplace the covariance)."""
+    omega = np.array([2.5e4, 6e4, 1.2e5])
+    zeta = np.array([0.01, 0.02, 0.005])
+    coef = np.linspace(1.0, 2.0, problem.n_linear)
+    first = problem.model_derivatives(omega, zeta, LAG, coef, lag_free=True)
+    assert not first.flags.writeable
+    assert problem.model_derivatives(omega, zeta, LAG, coef, lag_free=True) is first
+    for args, kwargs in (((omega, zeta, LAG, 2 * coef), {'lag_free': True}),
+                         ((omega * 1.01, zeta, LAG, coef), {'lag_free': True}),
+                         ((omega, zeta, LAG, coef), {'lag_free': False}),
+                         ((omega, zeta, LAG, coef), {'lag_free': True, 'whitened': False})):
+        other = problem.model_derivatives(*args, **kwargs)
+        assert other.shape != first.shape or not np.allclose(other, first)
+    raw = problem.model_derivatives(omega, zeta, LAG, coef, lag_free=True, whitened=False)
+    old = problem.whiten
+    try:
+        problem.set_whitening(None)
+        np.testing.assert_array_equal(
+            problem.model_derivatives(omega, zeta, LAG, coef, lag_free=True), raw)
+    finally:
+        problem.set_whitening(old)
+    np.testing.assert_array_equal(
+        problem.model_derivatives(omega, zeta, LAG, coef, lag_free=True), first)
+
+
 @pytest.mark.parametrize('columns', [1, 47, 48, 300])
 @pytest.mark.parametrize('rows', [5, 130])
 def test_lower_times_is_the_product_with_the_lower_triangle(rows: int, columns: int) -> None:

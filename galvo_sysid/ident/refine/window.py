@@ -154,6 +154,7 @@ class WindowProblem:
         self.whiten = a
         self.yf = self.apply_whitening(self.yf_raw)
         self._columns_cache: dict[bool, tuple[bytes, NDArray[np.float64]]] = {}
+        self._derivatives: tuple[bytes, NDArray[np.float64]] | None = None  # the last one
 
     def apply_whitening(self, arr: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
         """Whiten ``arr`` along the row ``axis`` (an invertible lower-triangular map, so no row
@@ -211,12 +212,17 @@ class WindowProblem:
         """The model's derivatives: d (columns @ coef) / d x_j, shape (rows, 2 n (+1)).
 
         For every nonlinear parameter (ln omega_i, ln zeta_i, then T_l / T if ``lag_free``), by
-        forward differences, whitened or not.
+        forward differences, whitened or not. The last result is kept and given again for the
+        same arguments (read-only: the covariance asks for the fit's last Jacobian's).
 
         Each difference is combined with the coefficients before it is convolved and whitened
         (both linear): one response and one whitened column per parameter, not one per
         column it touches.
         """
+        key = b''.join(np.asarray(v, dtype=float).tobytes()
+                       for v in (omega, zeta, [lag, float(lag_free), float(whitened)], coef))
+        if self._derivatives is not None and self._derivatives[0] == key:
+            return self._derivatives[1]
         n = self.n_modes
         h = 1e-6
         regs, first = self.regs, self.first
@@ -250,7 +256,10 @@ class WindowProblem:
                            - k0 * step * regs.rigid_single[first:])
         if whitened:
             out = self.apply_whitening(out)
-        return np.asarray(out / h, dtype=np.float64)
+        out = np.asarray(out / h, dtype=np.float64)
+        out.flags.writeable = False
+        self._derivatives = (key, out)
+        return out
 
     # -- scans -----------------------------------------------------------------------------
     def _candidates(self, lag: float, w_c: NDArray[np.float64],
