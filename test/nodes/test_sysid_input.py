@@ -191,6 +191,8 @@ def test_moves_of_a_second_sample_period_are_set_aside_not_published(graph: Grap
 
     def handled() -> bool:  # every half counted, every completed window fitted or dropped
         c = counters(sysid.text())
+        if not c:  # no counters printed yet
+            return False
         done = sum(c[-1].get(k, 0) for k in ('windows_identified', 'windows_failed',
                                              'windows_mismatched', 'windows_dropped'))
         return _settled(sysid, total) and done == c[-1]['windows_completed'] >= 2
