@@ -46,7 +46,6 @@ import argparse
 import collections
 import datetime
 import functools
-import importlib.util
 import statistics
 import sys
 import time
@@ -141,13 +140,8 @@ def _paper(count: int) -> list[Any]:
 
 def _family(seeds: int) -> list[Any]:
     """Fits of efficiency.py's conditions, seeds 0..seeds-1 each, as efficiency.py fits them."""
-    path = Path(__file__).resolve().parent / 'efficiency.py'
-    spec = importlib.util.spec_from_file_location('benchmark_efficiency', path)
-    assert spec is not None
-    assert spec.loader is not None
-    eff = importlib.util.module_from_spec(spec)
-    sys.modules['benchmark_efficiency'] = eff
-    spec.loader.exec_module(eff)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import efficiency as eff  # a script beside this one, not a package
     out = []
     for cond in eff.conditions():
         truth = cond.truth

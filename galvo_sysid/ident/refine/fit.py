@@ -210,10 +210,10 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
     # Stage 1 only has to find the basin when the prewhitened stage 2 polishes afterwards.
     tol = _STAGE1_TOL if two_stage else 1e-8
 
-    final_tol = [1e-8]  # set to CHI2_STEP's share of the cost once the cost is in noise units
+    final_tol = 1e-8  # CHI2_STEP's share of the cost once the cost is in noise units
 
     def polish(x0: NDArray[np.float64], tol: float | None = None) -> NDArray[np.float64]:
-        tol = final_tol[0] if tol is None else tol
+        tol = final_tol if tol is None else tol
         try:
             sol = least_squares(joint.residual, x0, jac=joint.jacobian, bounds=(lower, upper),
                                 x_scale='jac', max_nfev=opt.max_nfev, method='trf', ftol=tol,
@@ -232,7 +232,7 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
     x = best[1] if best is not None else starts[0]
     if two_stage:
         joint.prewhiten(x, whiten_order)
-        final_tol[0] = max(1e-8, CHI2_STEP / max(joint.cost(x), 1.0))
+        final_tol = max(1e-8, CHI2_STEP / max(joint.cost(x), 1.0))
         x = polish(x)
     profiles: list[ModeProfile] = []
     if noisy and n:
