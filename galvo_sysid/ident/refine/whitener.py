@@ -7,7 +7,10 @@ gives the whitened tail of a decaying exponential in closed form
 (:meth:`Whitener.exponential_tail`): the free-response columns of many candidate modes are
 whitened without a transform each. :func:`stationary_noise_model` estimates the noise the
 Cramer-Rao bound needs: the stationary noise of deviations that also carry each move's own
-nuisance (its initial conditions), by expectation-maximisation over that nuisance.
+nuisance (its initial conditions), by expectation-maximisation over that nuisance; its two
+passes reduce to one whitener of the first pass's lags for the fit
+(:meth:`WhitenerChain.single`). A whitener's head rows are a lower-triangular product
+(:func:`lower_times`, BLAS ``trmm`` for many columns).
 """
 
 from __future__ import annotations
