@@ -93,11 +93,6 @@ class Whitener:
         out[:p, :p] = self.head[:p, :p]
         return np.asarray(out, dtype=np.float64)
 
-    def head_times(self, arr: NDArray[np.float64]) -> NDArray[np.float64]:
-        """``head @ arr`` for ``arr`` of (h, k) rows: a triangular product (BLAS ``trmm``,
-        about a quarter faster than a full one for the scans' hundreds of columns)."""  # noqa: D205, D209
-        return lower_times(self.head, arr)
-
     @property
     def order(self) -> int:
         """Rows of the exact head (the FIR filter applies from this row on)."""

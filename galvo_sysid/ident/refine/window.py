@@ -29,7 +29,7 @@ from galvo_sysid.ident.refine.regressors import (
     powers,
     second_difference,
 )
-from galvo_sysid.ident.refine.whitener import Whitener
+from galvo_sysid.ident.refine.whitener import Whitener, lower_times
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -290,7 +290,7 @@ class WindowProblem:
         head[:, 0] = forced[:, first: first + p].T
         head[:, 1] = e[:, first: first + p].real.T
         head[:, 2] = e[:, first: first + p].imag.T
-        out[:p] = wh.head_times(head.reshape(p, -1)).reshape(p, 3, m)
+        out[:p] = lower_times(wh.head, head.reshape(p, -1)).reshape(p, 3, m)
         out[p:, 0] = filtered[:, first + p:].T
         out[p:, 1] = tail.real.T
         out[p:, 2] = tail.imag.T
