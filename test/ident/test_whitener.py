@@ -203,3 +203,13 @@ def test_one_whitener_of_a_chain_is_its_noise_model() -> None:
     out = short.apply(noise)[1000:]
     assert np.var(out) == pytest.approx(var_short, rel=0.03)
     np.testing.assert_allclose(chain.apply(noise)[1000:].var(), 1.0, rtol=0.02)
+
+
+@pytest.mark.parametrize('n', [1, 2, 3, 5, 64, 513])
+def test_powers_are_the_exponentials(n: int) -> None:
+    """E[j, k] = exp(p_j T k), by doubling, to a few eps times the record length."""
+    w_c, z_c = _candidates()
+    p, e = powers(w_c, z_c, n, TAU)
+    want = np.exp(p[:, None] * TAU * np.arange(n))
+    assert e.shape == (w_c.size, n)
+    np.testing.assert_allclose(e, want, rtol=0, atol=4 * n * np.finfo(float).eps + 1e-300)

@@ -70,12 +70,17 @@ def powers(omega: Floats, zeta: Floats, n: int,
     w = np.asarray(omega, dtype=float)
     z = np.asarray(zeta, dtype=float)
     p = -z * w + 1j * w * np.sqrt(np.maximum(1.0 - z * z, 1e-12))
-    # cumulative product of the discrete pole: far cheaper than n complex exponentials and
-    # accurate to ~n eps
+    # powers of the discrete pole by doubling (E[:, k:2k] = E[:, :k] lambda^k): far cheaper
+    # than n complex exponentials or a running product, and accurate to ~n eps
     e = np.empty((p.size, n), dtype=np.complex128)
     e[:, 0] = 1.0
-    e[:, 1:] = np.exp(p * sample_period)[:, None]
-    np.cumprod(e, axis=1, out=e)
+    if n > 1:
+        e[:, 1] = np.exp(p * sample_period)
+    k = 2
+    while k < n:
+        c = min(k, n - k)
+        np.multiply(e[:, :c], (e[:, k - 1] * e[:, 1])[:, None], out=e[:, k: k + c])
+        k += c
     return p, e
 
 
@@ -135,9 +140,11 @@ class Regressors:
         cached = self._taps_cache  # read once (see lag_impulse)
         if cached is None or cached[0] is not taps:
             cached = self._taps_cache = (taps, sp_fft.rfft(taps, self.nfft))
-        prod = sp_fft.rfft(h, self.nfft, axis=-1) * self.uf_hat
-        both = sp_fft.irfft(np.stack([prod, prod * cached[1]]), self.nfft,
-                            axis=-1)[..., : self.n]
+        hh = sp_fft.rfft(h, self.nfft, axis=-1)
+        prod = np.empty((2, *hh.shape), dtype=hh.dtype)
+        np.multiply(hh, self.uf_hat, out=prod[0])
+        np.multiply(prod[0], cached[1], out=prod[1])
+        both = sp_fft.irfft(prod, self.nfft, axis=-1, overwrite_x=True)[..., : self.n]
         return np.asarray(both[0], dtype=np.float64), np.asarray(both[1], dtype=np.float64)
 
     def _pulse(self, p: NDArray[np.complex128]) -> tuple[NDArray[np.complex128],
@@ -155,9 +162,11 @@ class Regressors:
         d, n = self.delay, self.n
         h = np.zeros(e.shape)
         if d + 1 < n:
-            h[:, d + 1:] = 2.0 * (a1[:, None] * e[:, : n - d - 1]).real
+            h[:, d + 1] = 2.0 * a1.real
         if d + 2 < n:
-            h[:, d + 2:] += 2.0 * (a2[:, None] * e[:, : n - d - 2]).real
+            # a1 E[k-1-d] + a2 E[k-2-d] = (a1 lambda + a2) E[k-2-d]: one product per sample
+            a = 2.0 * (a1 * e[:, 1] + a2)
+            h[:, d + 2:] = (a[:, None] * e[:, : n - d - 2]).real
         return h
 
     def lag_impulse(self, lag: float) -> NDArray[np.float64]:
