@@ -496,3 +496,39 @@ def test_the_evidence_of_every_mode_from_one_factorisation_is_the_scan_at_its_po
                     for i in range(r.n_modes)]
             np.testing.assert_allclose(got, want, rtol=1e-9)
             assert min(got) > 0
+
+
+@pytest.mark.parametrize('seed', [0, 1, 4])
+def test_a_weak_mode_between_the_band_grid_points_gets_the_span_of_its_fine_profile(
+        seed: int) -> None:
+    """1 psi, 100 moves: the third mode's basin is narrower than the band grid's 1 % step,
+    so the band scan's plausible span collapses to the fit. The profile near the fit finds
+    the span a brute-force profile (0.005 % steps, 60 dampings) gives, ends within 5 % of its
+    half-width."""
+    from galvo_sysid.ident.refine.joint import covariance
+    from galvo_sysid.ident.refine.profile import (
+        PROFILE_LEVEL,
+        _scan,
+        check_linearised,
+        profile_modes,
+    )
+
+    r = REFERENCE_MODEL
+    joint, band_list, polish = _fit_problem([simulate_window(PSI, moves=100, seed=seed)])
+    x = polish(joint.pack(np.array(r.natural_frequencies), np.array(r.damping_ratios),
+                          0.6 * TAU))
+    profiles = profile_modes(joint, x, band_list)
+    assert profiles[2].omega_span[0] == profiles[2].omega_span[1]  # collapsed
+    cov = covariance(joint, x, joint.coefficients(x), bound=False)[0]
+    span = check_linearised(joint, x, cov, profiles, band_list)[2].omega_span
+    omega, zeta, lag = joint.unpack(x)
+    w = omega[2] * np.exp(np.linspace(-0.02, 0.02, 801))
+    z = np.geomspace(3e-4, 0.05, 60)
+    gain, _ = _scan(joint, 2, omega, zeta, lag, np.concatenate([[omega[2]], np.repeat(w, z.size)]),
+                    np.concatenate([[zeta[2]], np.tile(z, w.size)]))
+    rise = (gain[0] - gain[1:]).reshape(w.size, z.size).min(axis=1)
+    plausible = w[rise < PROFILE_LEVEL]
+    half = 0.5 * (plausible.max() - plausible.min())
+    assert half > 300.0  # about 0.2 % either side: far from a point
+    assert abs(span[0] - plausible.min()) < 0.05 * half
+    assert abs(span[1] - plausible.max()) < 0.05 * half

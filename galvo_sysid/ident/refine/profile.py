@@ -12,7 +12,10 @@ the cost is scanned over a grid of its band and of damping ratios, the other mod
   mode's std is raised so that the farthest of them lies 3 std away
   (:func:`widen_to_profiles`);
 - a mode that lowers the cost by less than :data:`MODE_EVIDENCE`, or whose plausible
-  frequencies cover half its band, is not resolved.
+  frequencies cover half its band, is not resolved;
+- the band's grid steps about 1 % in frequency, coarser than a lightly damped mode's basin:
+  a resolved mode is profiled again one grid step either side of its fit, finely, and its
+  span reaches where that profile crosses the level (:func:`check_linearised`).
 
 A mode with :data:`STRONG_EVIDENCE` is not scanned over its band, but its linearised std is
 checked (:func:`check_linearised`): the cost, the damping minimised out, is evaluated 1 and 3
@@ -202,7 +205,7 @@ def widen_to_profiles(cov: NDArray[np.float64], profiles: Sequence[ModeProfile],
 
 def _omega_profile(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArray[np.float64],
                    ridge: tuple[float, float, float], band: tuple[float, float], *,
-                   spread: int = 4) -> tuple[
+                   spread: int = 4, damping: NDArray[np.float64] | None = None) -> tuple[
                        NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
                        NDArray[np.float64]]:
     """Cost rise of mode i at log-frequency offsets u (in linearised std), its damping minimised.
@@ -220,10 +223,12 @@ def _omega_profile(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArr
     logz = (math.log(zeta[i]) + rho * s_z * u[:, None]
             + s_z * math.sqrt(max(1.0 - rho * rho, 1e-6)) * v[None, :])
     z = np.exp(np.clip(logz, math.log(1e-5), math.log(0.9)))
-    w_c = np.concatenate([[omega[i]], np.repeat(w, v.size)])
+    if damping is not None:
+        z = np.concatenate([z, np.broadcast_to(damping, (u.size, damping.size))], axis=1)
+    w_c = np.concatenate([[omega[i]], np.repeat(w, z.shape[1])])
     z_c = np.concatenate([[zeta[i]], z.ravel()])
     gain, k = _scan(joint, i, omega, zeta, lag, w_c, z_c)
-    delta = (gain[0] - gain[1:]).reshape(u.size, v.size)
+    delta = (gain[0] - gain[1:]).reshape(u.size, -1)
     rows = np.arange(u.size)
     best = np.argmin(delta, axis=1)
     rise = delta[rows, best]
@@ -233,13 +238,53 @@ def _omega_profile(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArr
         curv = a - 2 * b + c
         if curv > 0:
             rise[r] = b - (a - c) ** 2 / (8 * curv)
-    return np.maximum(rise, 0.0), w, z[rows, best], k[1:].reshape(u.size, v.size)[rows, best]
+    return np.maximum(rise, 0.0), w, z[rows, best], k[1:].reshape(u.size, -1)[rows, best]
+
+
+def _near_fit(joint: JointProblem, i: int, x: NDArray[np.float64],
+              ridge: tuple[float, float, float], band: tuple[float, float],
+              p: ModeProfile) -> ModeProfile:
+    """A band-scanned mode's profile near its fit, where the band's grid is too coarse.
+
+    The band's grid steps about 1 % in frequency; a lightly damped mode's basin can be
+    narrower, so a plausible frequency next to the fit's can fall between two grid points and
+    the mode's span collapse to the fit. The cost is profiled one grid step (at least 12
+    linearised std) either side of the fit, the damping minimised over the linearised ridge
+    and over the grid's dampings whose basins the grid cannot see (narrower than its step);
+    the plausible points found widen ``p``'s spans.
+    """
+    lo, hi = band
+    step = (hi / lo) ** (1.0 / (_POINTS - 1)) - 1.0
+    s_w = ridge[0]
+    reach = max(12.0, step / s_w)
+    side = reach * np.array([1.0, 2.0, 3.0, 4.5, 6.0, 8.0, 10.0, 12.0]) / 12.0
+    damping = np.array([z for z in _DAMPING if s_w <= z <= step])
+    rise, w, z, k = _omega_profile(joint, i, x, np.concatenate([-side[::-1], side]), ridge,
+                                   band, spread=2, damping=damping)
+    ok = rise < PROFILE_LEVEL
+    if not ok.any():
+        return p
+    # the span's ends where the rise crosses the level between two samples (linearly)
+    first, last = int(np.argmax(ok)), int(ok.size - 1 - np.argmax(ok[::-1]))
+    w_lo, w_hi = float(w[first]), float(w[last])
+    if first > 0:
+        a = (rise[first - 1] - PROFILE_LEVEL) / (rise[first - 1] - rise[first])
+        w_lo = float(w[first - 1] + a * (w[first] - w[first - 1]))
+    if last < ok.size - 1:
+        a = (rise[last + 1] - PROFILE_LEVEL) / (rise[last + 1] - rise[last])
+        w_hi = float(w[last + 1] + a * (w[last] - w[last + 1]))
+    return ModeProfile(
+        evidence=p.evidence, better=None,
+        omega_span=(min(w_lo, p.omega_span[0]), max(w_hi, p.omega_span[1])),
+        zeta_span=(min(float(z[ok].min()), p.zeta_span[0]),
+                   max(float(z[ok].max()), p.zeta_span[1])),
+        k_span=(min(float(k[ok].min()), p.k_span[0]), max(float(k[ok].max()), p.k_span[1])))
 
 
 def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[np.float64],
                      profiles: Sequence[ModeProfile],
                      band_list: Sequence[tuple[float, float]]) -> list[ModeProfile]:
-    """Profiles of the strong modes whose cost is not quadratic over their linearised std.
+    """Profiles near the fit, where the linearised std or the band's grid may not stand.
 
     Args:
         joint: The problem, prewhitened as at the fit.
@@ -252,14 +297,16 @@ def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[n
         ``profiles`` with each strong mode whose check fails replaced by its local profile:
         the frequencies where the cost, damping minimised out, rises by less than it does at
         3 std by its curvature at the fit (9 for a quadratic cost in noise units), and the
-        dampings and residues along that path.
+        dampings and residues along that path; and each band-scanned mode with evidence
+        enough to be resolved widened by its profile one grid step either side of the fit
+        (the points below :data:`PROFILE_LEVEL`, the ends interpolated).
     """
     omega, zeta, _ = joint.unpack(x)
     n = joint.n_modes
     out = list(profiles)
     for i, p in enumerate(profiles):
-        if p.omega_span[1] > p.omega_span[0]:
-            continue  # scanned over its band already
+        if p.evidence < MODE_EVIDENCE:
+            continue  # not resolved: its std is the band's
         jw, jz = 1 + n + i, 1 + 2 * n + i
         var_w, var_z = float(cov[jw, jw]), float(cov[jz, jz])
         if not (var_w > 0 and var_z > 0 and math.isfinite(var_w + var_z)):
@@ -268,6 +315,9 @@ def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[n
         s_z = math.sqrt(var_z) / zeta[i]
         rho = float(np.clip(cov[jw, jz] / math.sqrt(var_w * var_z), -1.0, 1.0))
         ridge = (s_w, s_z, rho)
+        if not p.local and p.evidence < STRONG_EVIDENCE:  # scanned over its band
+            out[i] = _near_fit(joint, i, x, ridge, band_list[i], p)
+            continue
         rise = _omega_profile(joint, i, x, np.array([-3.0, -1.0, 1.0, 3.0]), ridge,
                               band_list[i], spread=2)[0]
         if rise[0] >= QUADRATIC_SHORTFALL * 9.0 * rise[1] \
