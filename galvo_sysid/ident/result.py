@@ -33,8 +33,10 @@ class IdentificationResult:
         fit_percent: Fit of the (1 - q^-1)^2-filtered averaged output [%] (see module docs).
         method: ``'paper-A'``, ``'paper-B'`` or ``'refined'``.
         resolved: Per mode, whether the data place it (its residue is significant, at least
-            5 standard deviations); an unresolved mode's numbers say nothing (its std is
-            widened to its band).
+            5 standard deviations of the fit); an unresolved mode's numbers say nothing (its
+            std is widened to its band). The refined method's reported std of a residue that only
+            just passed also counts the bias of having passed (up to 3.1 times the fit's std
+            at the threshold, see :func:`~galvo_sysid.ident.refine.checks.widen_selected`).
         set_aside: ``(move index, reason)`` of the window's moves left out by the screening
             (:func:`~galvo_sysid.ident.screen.screen_moves`); ``moves`` counts the rest.
         crlb_std: Cramer-Rao lower bound of each parameter's standard deviation, keyed like

@@ -22,13 +22,17 @@ resolves a mode no single window does. Both run the same steps (the tuning is
    ``_STAGE1_TOL``); stage 2 ends when a step lowers the cost by less than
    :data:`CHI2_STEP` noise units, a tenth of a std from the optimum.
 3. **Profiles** (:mod:`~galvo_sysid.ident.refine.profile`): a weakly excited mode is scanned
-   over its band: a better basin is polished, its std widened to the plausible region.
+   over its band, and finer near its fit: a better basin is polished, its std widened to the
+   plausible region.
 4. **Checks.** A resolved mode ending at its band edge, or a residual between the band edges
    far above the noise (``options.adequacy_limit``), raises
    :class:`~galvo_sysid.errors.ModelMismatchError`: the data hold dynamics the model does not
    place in its bands. A mode whose residue is below ``options.resolve_z`` of its std, or that the
    profile does not place, is reported unresolved with an uninformative std for its
-   frequency and damping.
+   frequency and damping. A residue that only just passed that test is likely to have been
+   pushed over it by the noise: its std adds that expected bias
+   (:func:`~galvo_sysid.ident.refine.checks.widen_selected`), so the std of a marginally
+   resolved mode stays calibrated.
 """
 
 from __future__ import annotations
@@ -47,6 +51,7 @@ from galvo_sysid.ident.refine.checks import (
     edge_mode,
     inflate_unresolved,
     residual_to_noise,
+    widen_selected,
 )
 from galvo_sysid.ident.refine.joint import JointProblem, covariance
 from galvo_sysid.ident.refine.options import MAX_DAMPING, MIN_DAMPING, RefineOptions
@@ -341,6 +346,10 @@ def _result(joint: JointProblem, x: NDArray[np.float64],
     k_std = np.sqrt(np.clip(np.diag(cov)[1: 1 + n], 0.0, None))
     unresolved = tuple(i for i in range(n) if abs(shared[1 + i]) < resolve_z * k_std[i]
                        or (profiles and not profiles[i].resolved(band_list[i])))
+    # A residue that just passed the test is likely to have been pushed over it by the
+    # noise: its std counts that bias.
+    widen_selected(cov, [float(k) for k in shared[1:]], [i not in unresolved for i in range(n)],
+                   threshold=resolve_z, n=n)
     edge = edge_mode((omega, zeta, lag), band_list)
     if edge is not None and edge not in unresolved:
         lo, hi = band_list[edge]
