@@ -11,6 +11,7 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy import fft as sp_fft
 from scipy.special import log_ndtr
 
 from galvo_sysid.errors import ConfigurationError
@@ -91,9 +92,9 @@ def selection_bias(z: float, threshold: float) -> float:
     (threshold 0).
     """
     a = abs(z)
-    if threshold <= 0 or not math.isfinite(a) or a < threshold:
-        return 0.0
-    mu = np.linspace(-threshold - 12.0, a + 12.0, 4001)
+    if threshold <= 0 or not math.isfinite(a) or a < threshold or a > threshold + 8.0:
+        return 0.0  # (8 std above the threshold the excess is below 1e-7)
+    mu = np.linspace(-threshold - 10.0, a + 10.0, 1201)
     log_pass = np.logaddexp(log_ndtr(-threshold - mu), log_ndtr(mu - threshold))
     log_l = -0.5 * (a - mu) ** 2 - log_pass
     w = np.exp(log_l - log_l.max())
@@ -135,8 +136,8 @@ def residual_to_noise(resid: NDArray[np.float64], dev: NDArray[np.float64],
     """
     m = dev.shape[0]
     win = np.hanning(resid.size)
-    res_psd = np.abs(np.fft.rfft(resid * win)) ** 2
-    noise_psd = np.mean(np.abs(np.fft.rfft(dev * win, axis=1)) ** 2, axis=0) / m
+    res_psd = np.abs(sp_fft.rfft(resid * win)) ** 2
+    noise_psd = np.mean(np.abs(sp_fft.rfft(dev * win, axis=1)) ** 2, axis=0) / m
     freq = np.fft.rfftfreq(resid.size, sample_period) * 2 * math.pi
     lowest = 2 * math.pi * 4 / (resid.size * sample_period)
     top = 0.98 * math.pi / sample_period

@@ -257,7 +257,7 @@ def _near_fit(joint: JointProblem, i: int, x: NDArray[np.float64],
     step = (hi / lo) ** (1.0 / (_POINTS - 1)) - 1.0
     s_w = ridge[0]
     reach = max(12.0, step / s_w)
-    side = reach * np.array([1.0, 2.0, 3.0, 4.5, 6.0, 8.0, 10.0, 12.0]) / 12.0
+    side = reach * np.array([1.5, 3.0, 4.5, 6.5, 9.0, 12.0]) / 12.0
     damping = np.array([z for z in _DAMPING if s_w <= z <= step])
     rise, w, z, k = _omega_profile(joint, i, x, np.concatenate([-side[::-1], side]), ridge,
                                    band, spread=2, damping=damping)

@@ -19,6 +19,7 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy import fft as sp_fft
 from scipy.linalg import toeplitz
 from scipy.linalg.blas import dtrmm
 from scipy.linalg.lapack import dpotrf, dtrtri
@@ -121,9 +122,9 @@ class Whitener:
         size = _fft_size(n + self.filter.size - 1)
         spectrum = self._spectra.get(size)
         if spectrum is None:
-            spectrum = self._spectra[size] = np.fft.rfft(self.filter, size)
+            spectrum = self._spectra[size] = sp_fft.rfft(self.filter, size)
         shape = (-1,) + (1,) * (moved.ndim - 1)
-        out = np.fft.irfft(np.fft.rfft(moved, size, axis=0) * spectrum.reshape(shape), size,
+        out = sp_fft.irfft(sp_fft.rfft(moved, size, axis=0) * spectrum.reshape(shape), size,
                            axis=0)[:n]
         p = min(self.head.shape[0], n)
         rest = moved.shape[1:]
@@ -166,9 +167,9 @@ def _autocovariance(dev: NDArray[np.float64], order: int) -> NDArray[np.float64]
     """Sum over the moves (rows) of each lag's products, lags 0..order (one FFT pass)."""
     n = dev.shape[1]
     size = _fft_size(n + order)  # no wrap-around for the lags wanted
-    f = np.fft.rfft(dev, size, axis=1)
+    f = sp_fft.rfft(dev, size, axis=1)
     power = np.sum(f.real * f.real + f.imag * f.imag, axis=0)
-    return np.asarray(np.fft.irfft(power, size)[: order + 1], dtype=np.float64)
+    return np.asarray(sp_fft.irfft(power, size)[: order + 1], dtype=np.float64)
 
 
 def _normalised(r: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -239,8 +240,8 @@ class WhitenerChain:
         grid = _fft_size(max(8192, 16 * taps))
         gain = np.ones(grid // 2 + 1)
         for stage in self.stages:
-            gain *= np.abs(np.fft.rfft(stage.filter, grid)) ** 2
-        r = np.fft.irfft(1.0 / gain, grid)[: lags + 1]
+            gain *= np.abs(sp_fft.rfft(stage.filter, grid)) ** 2
+        r = sp_fft.irfft(1.0 / gain, grid)[: lags + 1]
         return _levinson(_normalised(r)), float(r[0])
 
 
@@ -333,15 +334,15 @@ def stationary_noise_model(dev: NDArray[np.float64], nuisance: NDArray[np.float6
     y = first.apply(np.ascontiguousarray(dev.T))
     y_q = first.apply(q)
     size = _fft_size(n + lags)
-    f_y = np.fft.rfft(y, size, axis=0)
-    f_q = np.fft.rfft(y_q, size, axis=0)
+    f_y = sp_fft.rfft(y, size, axis=0)
+    f_q = sp_fft.rfft(y_q, size, axis=0)
     power_y = np.sum(f_y.real**2 + f_y.imag**2, axis=1)
     rows = min(lags, n)
 
     def whiten(second: Whitener, x: NDArray[np.float64],
                f_x: NDArray[np.complex128]) -> NDArray[np.float64]:
         # second.apply(x) from x's transform (the filter has order + 1 taps: same size)
-        out = np.asarray(np.fft.irfft(f_x * np.fft.rfft(second.filter, size)[:, None], size,
+        out = np.asarray(sp_fft.irfft(f_x * sp_fft.rfft(second.filter, size)[:, None], size,
                                       axis=0)[:n], dtype=np.float64)
         out[:rows] = lower_times(second.head[:rows, :rows], x[:rows])
         return out
@@ -351,7 +352,7 @@ def stationary_noise_model(dev: NDArray[np.float64], nuisance: NDArray[np.float6
         cross = f_y @ beta.T               # (K, p)
         power = (power_y - 2.0 * np.sum((f_q * cross.conj()).real, axis=1)
                  + np.einsum('kj,jl,kl->k', f_q, beta @ beta.T + extra, f_q.conj()).real)
-        r2 = np.fft.irfft(power, size)[: lags + 1]
+        r2 = sp_fft.irfft(power, size)[: lags + 1]
         if not r2[0] > 0:
             return result
         second = _levinson(_normalised(r2))
