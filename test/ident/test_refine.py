@@ -521,6 +521,9 @@ def test_a_weak_mode_between_the_band_grid_points_gets_the_span_of_its_fine_prof
     assert profiles[2].omega_span[0] == profiles[2].omega_span[1]  # collapsed
     cov = covariance(joint, x, joint.coefficients(x), bound=False)[0]
     span = check_linearised(joint, x, cov, profiles, band_list)[2].omega_span
+    # an unresolved mode's std is its band's: it is not profiled again
+    assert check_linearised(joint, x, cov, profiles, band_list, unresolved=(2,))[2] \
+        is profiles[2]
     omega, zeta, lag = joint.unpack(x)
     w = omega[2] * np.exp(np.linspace(-0.02, 0.02, 801))
     z = np.geomspace(3e-4, 0.05, 60)

@@ -359,7 +359,8 @@ def _result(joint: JointProblem, x: NDArray[np.float64],
     # A strong mode is resolved by its evidence; where its cost is not quadratic, its std
     # comes from its local profile.
     if profiles:
-        widen_to_profiles(cov, check_linearised(joint, x, cov, profiles, band_list),
+        widen_to_profiles(cov, check_linearised(joint, x, cov, profiles, band_list,
+                                                unresolved=unresolved),
                           [*shared, *omega, *zeta], n)
     inflate_unresolved(cov, unresolved, band_list, n)
     single = len(coefs) == 1

@@ -283,7 +283,8 @@ def _near_fit(joint: JointProblem, i: int, x: NDArray[np.float64],
 
 def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[np.float64],
                      profiles: Sequence[ModeProfile],
-                     band_list: Sequence[tuple[float, float]]) -> list[ModeProfile]:
+                     band_list: Sequence[tuple[float, float]], *,
+                     unresolved: Sequence[int] = ()) -> list[ModeProfile]:
     """Profiles near the fit, where the linearised std or the band's grid may not stand.
 
     Args:
@@ -292,6 +293,7 @@ def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[n
         cov: Its linearised covariance (k0, residues, frequencies, dampings, ...).
         profiles: :func:`profile_modes` at x; strong modes have a zero-width span.
         band_list: The modes' bands [rad/s].
+        unresolved: Modes found unresolved (their std is their band's): not profiled.
 
     Returns:
         ``profiles`` with each strong mode whose check fails replaced by its local profile:
@@ -305,7 +307,7 @@ def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[n
     n = joint.n_modes
     out = list(profiles)
     for i, p in enumerate(profiles):
-        if p.evidence < MODE_EVIDENCE:
+        if p.evidence < MODE_EVIDENCE or i in unresolved:
             continue  # not resolved: its std is the band's
         jw, jz = 1 + n + i, 1 + 2 * n + i
         var_w, var_z = float(cov[jw, jw]), float(cov[jz, jz])

@@ -339,11 +339,11 @@ def stationary_noise_model(dev: NDArray[np.float64], nuisance: NDArray[np.float6
     power_y = np.sum(f_y.real**2 + f_y.imag**2, axis=1)
     rows = min(lags, n)
 
-    def whiten(second: Whitener, x: NDArray[np.float64],
-               f_x: NDArray[np.complex128]) -> NDArray[np.float64]:
+    def whiten(second: Whitener, x: NDArray[np.float64], f_x: NDArray[np.complex128],
+               f_filter: NDArray[np.complex128]) -> NDArray[np.float64]:
         # second.apply(x) from x's transform (the filter has order + 1 taps: same size)
-        out = np.asarray(sp_fft.irfft(f_x * sp_fft.rfft(second.filter, size)[:, None], size,
-                                      axis=0)[:n], dtype=np.float64)
+        out = np.asarray(sp_fft.irfft(f_x * f_filter[:, None], size, axis=0)[:n],
+                         dtype=np.float64)
         out[:rows] = lower_times(second.head[:rows, :rows], x[:rows])
         return out
 
@@ -356,8 +356,9 @@ def stationary_noise_model(dev: NDArray[np.float64], nuisance: NDArray[np.float6
         if not r2[0] > 0:
             return result
         second = _levinson(_normalised(r2))
-        w_y = whiten(second, y, f_y)
-        q_w, r_w = np.linalg.qr(whiten(second, y_q, f_q))
+        f_filter = sp_fft.rfft(second.filter, size)
+        w_y = whiten(second, y, f_y, f_filter)
+        q_w, r_w = np.linalg.qr(whiten(second, y_q, f_q, f_filter))
         resid = w_y - q_w @ (q_w.T @ w_y)
         var = float(np.sum(resid * resid) / (m * max(n - p, 1)))
         if not var > 0:
