@@ -114,6 +114,10 @@ MAX_EFFICIENCY = 1.3
 CALIBRATION = (0.8, 1.25)
 """The must-show: median |err| <= 1.25 x 0.674 x bound, efficiency and calibration limits."""
 
+PARTIAL_WINDOWS = 10
+"""A mode resolved in only some windows: its calibration over those windows is summarised
+(against ``CALIBRATION``) where at least this many resolve it."""
+
 
 @dataclass(frozen=True)
 class Condition:
@@ -261,6 +265,11 @@ class Stats:
         """Whether the verdict counts it (k0, or its mode resolved in every window)."""
         return self.resolved == self.windows
 
+    @property
+    def partial(self) -> bool:
+        """Whether its mode is resolved in only some windows, at least ``PARTIAL_WINDOWS``."""
+        return PARTIAL_WINDOWS <= self.resolved < self.windows
+
     def failures(self) -> list[str]:
         """The must-show's tests it fails (none if not counted)."""
         if not self.counted:
@@ -336,6 +345,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f'{cond.name:<16} {cond.angle:g} deg: {describe(cond)}')
     times: list[float] = []
     summary: list[tuple[str, float, str, float, str, str, float, str]] = []
+    partial: list[tuple[str, Stats]] = []
     reference = math.nan
     chance = false_fail_rate(args.seeds)
     tasks = [(cond, seed) for cond in family for seed in range(args.seeds)]
@@ -375,6 +385,7 @@ def main(argv: list[str] | None = None) -> int:
                   f' {_cell(s.worst):>8} {_cell(s.calibration):>6} {_cell(s.reported):>6} '
                   f'{_cell(s.estimated):>6}  '
                   f'{verdict}')
+        partial += [(cond.name, s) for s in stats if s.partial]
         counted = [s for s in stats if s.counted]
         bad = [f'{s.name} ({", ".join(s.failures())})' for s in counted if s.failures()]
         passed = not bad and not failed
@@ -400,6 +411,15 @@ def main(argv: list[str] | None = None) -> int:
           f'{chance:.3f} at {args.seeds} seeds by sampling alone; P(pass) at bound: the chance it '
           f"passes all the condition's counted parameters (taken as independent); "
           f'expected passes {sum(row[-2] for row in summary if math.isfinite(row[-2])):.1f}')
+    if partial:
+        cal = [s.calibration for _, s in partial]
+        off = [f'{c} {s.name} {_cell(s.calibration)} ({s.resolved}/{s.windows})'
+               for c, s in partial if not CALIBRATION[0] <= s.calibration <= CALIBRATION[1]]
+        print(f'modes resolved in only some windows (at least {PARTIAL_WINDOWS}): calibration over '
+              f'the windows that resolve them {_cell(min(cal))}-{_cell(max(cal))} for '
+              f'{len(partial)} parameters of {len({c for c, _ in partial})} conditions; '
+              + (f'outside {CALIBRATION[0]}-{CALIBRATION[1]}: {"; ".join(off)}' if off
+                 else f'all within {CALIBRATION[0]}-{CALIBRATION[1]}'))
     print(f'median time per window (identify_window, wall) {1e3 * statistics.median(times):.0f}'
           f' ms over {len(times)} windows')
     print(f'finished in {time.perf_counter() - start:.0f} s, '

@@ -66,6 +66,10 @@ def test_parameter_stats_arithmetic() -> None:
     k1 = eff.parameter_stats('k1', wins)      # mode 1 unresolved in one window
     assert (k1.resolved, k1.counted, k1.failures()) == (3, False, [])
     assert k1.calibration == pytest.approx(math.sqrt((1 + 1 + 9) / 3))
+    assert not k1.partial  # 3 windows resolve it: too few to summarise
+    assert not s.partial  # resolved in every window: counted
+    many = eff.parameter_stats('k1', wins * 4)
+    assert (many.resolved, many.windows, many.partial) == (12, 16, True)
 
 
 def test_an_efficient_estimator_passes() -> None:
