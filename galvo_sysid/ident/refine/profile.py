@@ -211,9 +211,10 @@ def _omega_profile(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArr
     """Cost rise of mode i at log-frequency offsets u (in linearised std), its damping minimised.
 
     Dampings are tried along the linearised ridge (the damping's regression on the frequency)
-    and ``spread`` conditional std either side of it, one std apart. Returns, per offset:
-    the rise (a parabola through the best three dampings), the frequency, and the best
-    damping and its residue.
+    and ``spread`` conditional std either side of it, one std apart, and at every offset the
+    fixed ``damping`` values if given. Returns, per offset: the rise (a parabola through the
+    best ridge damping and its neighbours), the frequency, and the best damping and its
+    residue.
     """
     omega, zeta, lag = joint.unpack(x)
     s_w, s_z, rho = ridge
@@ -274,7 +275,7 @@ def _near_fit(joint: JointProblem, i: int, x: NDArray[np.float64],
         a = (rise[last + 1] - PROFILE_LEVEL) / (rise[last + 1] - rise[last])
         w_hi = float(w[last + 1] + a * (w[last] - w[last + 1]))
     return ModeProfile(
-        evidence=p.evidence, better=None,
+        evidence=p.evidence, better=p.better,
         omega_span=(min(w_lo, p.omega_span[0]), max(w_hi, p.omega_span[1])),
         zeta_span=(min(float(z[ok].min()), p.zeta_span[0]),
                    max(float(z[ok].max()), p.zeta_span[1])),
