@@ -108,10 +108,9 @@ def widen_selected(cov: NDArray[np.float64], residues: Sequence[float],
     The std becomes ``std * sqrt(1 + b^2)``, b the residue's :func:`selection_bias`: the root
     mean square error of a residue that passed the test. Its correlations are kept (its row
     and column are scaled). The other parameters keep their std: carrying the bias over to
-    them by their regression on the residue made the dampings' std too wide (rms error/std
-    0.75-0.86 on ``benchmarks/efficiency.py``'s conditions instead of 0.92-1.13), because a
-    mode is selected by its evidence, not by its residue alone. A residue far above the
-    threshold is unchanged.
+    them by their regression on the residue made the dampings' std too wide in trials on
+    ``benchmarks/efficiency.py``'s conditions, because a mode is selected by its evidence,
+    not by its residue alone. A residue far above the threshold is unchanged.
     """
     for i in range(n):
         j = 1 + i
