@@ -36,12 +36,12 @@ mode, whose noise each move's ringing partly hides). A condition PASSes when for
 parameter of a mode resolved in every window: median |error| <= the limit, efficiency <= 1.3,
 calibration within 0.8-1.25. Modes not resolved in every window are reported (resolved count)
 and left out of the verdict; their calibration over the windows that resolve them, where at
-least ``PARTIAL_WINDOWS`` do, is summarised in one line against 0.8-1.25. The chance that an estimator exactly at the bound fails these
-tests by sampling alone, with this many seeds, is printed last (below 1e-4 per parameter at
-the default 400 seeds, 0.002 at 200, 0.022 at 100, 0.14 at 40, 0.57 at 8). At 100 seeds an
-estimator at the bound is expected to fail 2.3 of the 14 conditions by chance; so the
-default is 400, at which a FAIL is the estimator's (read it with the bias and max |error| /
-bound columns).
+least ``PARTIAL_WINDOWS`` do, is summarised in one line against 0.8-1.25. The chance that an
+estimator exactly at the bound fails these tests by sampling alone, with this many seeds, is
+printed last (below 1e-4 per parameter at the default 400 seeds, 0.002 at 200, 0.022 at 100,
+0.14 at 40, 0.57 at 8). At 100 seeds an estimator at the bound is expected to fail 2.3 of the
+14 conditions by chance; so the default is 400, at which a FAIL is the estimator's (read it
+with the bias and max |error| / bound columns).
 
 Usage (from the repository root; about 7 minutes for the default 400 seeds, 2 processes)::
 
