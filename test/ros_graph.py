@@ -291,7 +291,13 @@ def together(venv_bin: Path, *calls: Sequence[str]) -> list[subprocess.Completed
     procs = [subprocess.Popen([str(venv_bin / 'galvo-sysid'), *call], stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True) for call in calls]
     out = []
-    for call, proc in zip(calls, procs, strict=True):
-        stdout, stderr = proc.communicate(timeout=90)
-        out.append(subprocess.CompletedProcess(list(call), proc.returncode, stdout, stderr))
+    try:
+        for call, proc in zip(calls, procs, strict=True):
+            stdout, stderr = proc.communicate(timeout=90)
+            out.append(subprocess.CompletedProcess(list(call), proc.returncode, stdout, stderr))
+    finally:  # a command that hangs must not outlive the test (one spun a core for an hour)
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
     return out
