@@ -252,11 +252,15 @@ def move_messages(moves: Iterable[Move], *, t0: float) -> list[tuple[str, MoveSa
     return out
 
 
-_COUNTERS = re.compile(r'counters: (.*)$', re.MULTILINE)
+_COUNTERS = re.compile(r'counters: (.*)\n')
 
 
 def counters(text: str) -> list[dict[str, int]]:
-    """The sysid node's logged counter lines, oldest first."""
+    """The sysid node's logged counter lines, oldest first.
+
+    Only complete lines count: the log is read while the node writes it, and a line cut
+    short mid-write would parse as a wrong counter or not at all.
+    """
     out = []
     for m in _COUNTERS.finditer(text):
         out.append({k: int(v) for k, v in (kv.split('=') for kv in m.group(1).split(', '))})
