@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import os
 import signal
+import subprocess
+import sys
 import time
 from typing import TYPE_CHECKING, Any, TextIO
 
@@ -21,6 +24,7 @@ if TYPE_CHECKING:
     from rclpy.node import Node
 
 __all__ = [
+    'TEARDOWN_TIMEOUT',
     'Stop',
     'absolute',
     'message_class',
@@ -29,8 +33,12 @@ __all__ = [
     'ros_node',
     'say',
     'subscription_qos',
+    'teardown_deadline',
     'wait_for_publisher',
 ]
+
+TEARDOWN_TIMEOUT = 10.0
+"""Seconds a tool's node teardown may take before the process is killed (normally < 1 s)."""
 
 
 def message_class(msgtype: str) -> Any:
@@ -105,10 +113,48 @@ def ros_node(name: str) -> Iterator[Node]:
         node = rclpy.create_node(name, start_parameter_services=False)
         yield node
     finally:
-        if node is not None:
-            node.destroy_node()
+        with teardown_deadline(TEARDOWN_TIMEOUT):
+            if node is not None:
+                node.destroy_node()
+            with contextlib.suppress(Exception):
+                rclpy.shutdown()
+
+
+# cat ends when the pipe closes; only timeout's own 124 (time is up) kills
+_WATCHDOG = 'timeout "$1" cat >/dev/null; [ $? -eq 124 ] || exit 0; echo "$2" >&2; kill -9 "$3"'
+
+
+@contextlib.contextmanager
+def teardown_deadline(seconds: float) -> Iterator[None]:
+    """Kill this process, with a one-line message, if the block outlasts ``seconds``.
+
+    The middleware's teardown can hang (a DDS participant that never finishes deleting,
+    seen once under load: ``destroy_node`` spinning for an hour). It may hold the GIL there,
+    so no Python thread or signal handler would run; the watchdog is a separate ``sh``
+    that waits on a pipe from this process. When the block ends the pipe closes and the
+    watchdog exits; so does it when this process dies in any other way (no stale PID is
+    ever killed). Standard output and error are flushed first, so what the tool printed
+    is complete either way.
+    """
+    for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
-            rclpy.shutdown()
+            stream.flush()
+    message = (f'galvo-sysid: error: the ROS middleware did not shut down within {seconds:g} s;'
+               ' killed (the output above is complete)')
+    try:
+        watchdog = subprocess.Popen(
+            ['/bin/sh', '-c', _WATCHDOG, 'watchdog', f'{seconds:g}', message, str(os.getpid())],
+            stdin=subprocess.PIPE, stdout=subprocess.DEVNULL)
+    except OSError:  # no sh or timeout here: tear down without a deadline
+        yield
+        return
+    try:
+        yield
+    finally:
+        if watchdog.stdin is not None:
+            watchdog.stdin.close()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            watchdog.wait(timeout=1.0)
 
 
 def publisher_qos(node: Node, topic: str) -> tuple[bool, bool] | None:
