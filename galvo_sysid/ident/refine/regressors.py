@@ -103,7 +103,7 @@ class Regressors:
         self.delay = delay
         self.fraction = fraction
         self.n = u.shape[-1]
-        self.nfft = 1 << (2 * self.n - 1).bit_length()
+        self.nfft = int(sp_fft.next_fast_len(2 * self.n - 1, real=True))  # no wrap-around
         before = u[..., :1] if pre is None else np.broadcast_to(
             np.asarray(pre, dtype=float), u[..., :1].shape)
         u0 = u - before

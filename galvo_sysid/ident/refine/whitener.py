@@ -150,17 +150,8 @@ def lower_times(lower: NDArray[np.float64], arr: NDArray[np.float64]) -> NDArray
 
 
 def _fft_size(n: int) -> int:
-    """The smallest 2^a 3^b 5^c >= n (a fast FFT length)."""
-    best = 1 << (n - 1).bit_length()
-    p5 = 1
-    while p5 < best:
-        p35 = p5
-        while p35 < best:
-            size = p35 * (1 << max(0, (-(-n // p35) - 1).bit_length()))
-            best = min(best, size)
-            p35 *= 3
-        p5 *= 5
-    return best
+    """The smallest 2^a 3^b 5^c >= n (a fast real FFT length, scipy's ``next_fast_len``)."""
+    return int(sp_fft.next_fast_len(n, real=True))
 
 
 def _autocovariance(dev: NDArray[np.float64], order: int) -> NDArray[np.float64]:
