@@ -120,8 +120,10 @@ def ros_node(name: str) -> Iterator[Node]:
                 rclpy.shutdown()
 
 
-# cat ends when the pipe closes; only timeout's own 124 (time is up) kills
-_WATCHDOG = 'timeout "$1" cat >/dev/null; [ $? -eq 124 ] || exit 0; echo "$2" >&2; kill -9 "$3"'
+# cat ends when the pipe closes; only timeout's own 124 (time is up) kills (no timeout
+# program: 127, the tool goes on without a deadline, silently)
+_WATCHDOG = ('timeout "$1" cat >/dev/null 2>&1; [ $? -eq 124 ] || exit 0;'
+             ' echo "$2" >&2; kill -9 "$3"')
 
 
 @contextlib.contextmanager
