@@ -83,4 +83,3 @@ def test_the_watchdog_ends_with_a_process_that_dies_in_its_teardown() -> None:
     while _watchdogs('7.25') and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not _watchdogs('7.25')
-
