@@ -32,7 +32,11 @@ from rcl_interfaces.srv import (
     SetParametersAtomically,
 )
 from rclpy.exceptions import ParameterException, ParameterUninitializedException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import (
+    ExternalShutdownException,
+    MultiThreadedExecutor,
+    SingleThreadedExecutor,
+)
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -56,6 +60,7 @@ __all__ = [
     'DIAGNOSTIC_LEVELS',
     'MAX_REASON',
     'REJECTIONS_PER_SECOND',
+    'SPIN_WAKE',
     'ParameterSet',
     'check_ros_arguments',
     'descriptor',
@@ -69,6 +74,7 @@ __all__ = [
     'run_node',
     'scanner_name',
     'short_reason',
+    'spin',
 ]
 
 
@@ -424,6 +430,32 @@ STOP_REPORT_AFTER = 8.0
 """Seconds a node's stop (its close, the node's and rclpy's shutdown) may take before it prints
 every thread's stack to stderr (a hang in the field, or a test's stop timeout, then says where)."""
 
+SPIN_WAKE = 0.5
+"""Longest wait [s] of the node's executor before it looks whether its context was shut down.
+
+rclpy's Ctrl-C / SIGTERM handling wakes the executor and then shuts the context down, from
+another thread: an executor that wakes in between finds the context still valid, waits again,
+and no one wakes it (seen once in CI: the driver spun on for 10 s after SIGINT until killed).
+"""
+
+
+def spin(node: Node, *, threads: int = 1, wake: float = SPIN_WAKE) -> None:
+    """Run the node's callbacks until its context is shut down (Ctrl-C, SIGTERM).
+
+    Like ``rclpy.spin``, but no wait lasts longer than ``wake`` seconds (see
+    :data:`SPIN_WAKE`), so a shutdown whose wake-up was lost still ends the spin.
+    """
+    executor = (MultiThreadedExecutor(num_threads=threads, context=node.context) if threads > 1
+                else SingleThreadedExecutor(context=node.context))
+    try:
+        executor.add_node(node)
+        while node.context.ok():
+            executor.spin_once(timeout_sec=wake)
+    except ExternalShutdownException:  # the context went down during a wait: the same end
+        pass
+    finally:
+        executor.shutdown(timeout_sec=wake)
+
 
 def run_node(factory: Callable[[], Node], *, args: Sequence[str] | None = None,
              threads: int = 1) -> int:
@@ -454,12 +486,7 @@ def run_node(factory: Callable[[], Node], *, args: Sequence[str] | None = None,
     code = 0
     try:
         node = factory()
-        executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else None
-        if executor is None:
-            rclpy.spin(node)
-        else:
-            executor.add_node(node)
-            executor.spin()
+        spin(node, threads=threads)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except _rclpy.RCLError:

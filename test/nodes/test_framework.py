@@ -100,13 +100,13 @@ def _spin_until_the_context_dies(fail_on_live: bool) -> int:
     from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
     from rclpy.node import Node
 
-    def spin(node: Node) -> None:
+    def spin(node: Node, **_: object) -> None:
         if not fail_on_live:
             rclpy.shutdown()
         raise _rclpy.RCLError('failed to initialize wait set: the given context is not valid')
 
     monkey = pytest.MonkeyPatch()
-    monkey.setattr(framework.rclpy, 'spin', spin)
+    monkey.setattr(framework, 'spin', spin)
     try:
         return framework.run_node(lambda: Node('galvo_test_dead_context'), args=[])
     finally:
@@ -139,10 +139,10 @@ def test_a_stop_that_hangs_prints_every_threads_stack(tmp_path: Path) -> None:
             def close(self):
                 time.sleep(1.0)  # a hung stop
 
-        def spin(node):
+        def spin(node, **_):
             rclpy.shutdown()  # as Ctrl-C does
 
-        framework.rclpy.spin = spin
+        framework.spin = spin
         raise SystemExit(framework.run_node(lambda: Slow('galvo_test_slow_stop'), args=[]))
     """)
     out = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
@@ -161,10 +161,10 @@ def test_a_quick_stop_prints_nothing(tmp_path: Path) -> None:
         from rclpy.node import Node
         from galvo_sysid.nodes import framework
 
-        def spin(node):
+        def spin(node, **_):
             rclpy.shutdown()
 
-        framework.rclpy.spin = spin
+        framework.spin = spin
         raise SystemExit(framework.run_node(lambda: Node('galvo_test_quick_stop'), args=[]))
     """)
     out = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
@@ -187,12 +187,12 @@ def test_sigusr1_prints_the_stacks_of_a_running_node(tmp_path: Path) -> None:
         from rclpy.node import Node
         from galvo_sysid.nodes import framework
 
-        def spin(node):
+        def spin(node, **_):
             print('spinning', flush=True)
             time.sleep(3.0)  # a hang somewhere in the spin
             rclpy.shutdown()
 
-        framework.rclpy.spin = spin
+        framework.spin = spin
         raise SystemExit(framework.run_node(lambda: Node('galvo_test_usr1'), args=[]))
     """)
     proc = subprocess.Popen([sys.executable, '-c', script], stdout=subprocess.PIPE,
@@ -205,3 +205,37 @@ def test_sigusr1_prints_the_stacks_of_a_running_node(tmp_path: Path) -> None:
     assert proc.returncode == 0, err
     assert 'in spin' in err
     assert 'Current thread' in err
+
+
+def test_a_shutdown_whose_wake_up_is_lost_still_ends_the_spin() -> None:
+    """rclpy's Ctrl-C handling wakes the executor, then shuts the context down from another
+    thread; an executor that woke in between waits again with no one to wake it (rclpy.spin
+    then hangs: seen in CI). Here the context is shut down without any wake-up at all, as
+    that thread does, and the spin must still end within a few of its bounded waits."""
+    import threading
+    import time
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.node import Node
+
+    context = Context()
+    rclpy.init(args=[], context=context)
+    node = Node('galvo_test_lost_wake', context=context)
+    ended = threading.Event()
+
+    def run() -> None:
+        framework.spin(node, wake=0.2)
+        ended.set()
+
+    spinner = threading.Thread(target=run, daemon=True)
+    spinner.start()
+    try:
+        time.sleep(0.5)
+        assert spinner.is_alive()  # a live context: the spin goes on
+        assert context.handle is not None
+        context.handle.shutdown()  # rcl_shutdown: no Python callback, no executor wake-up
+        assert ended.wait(5.0), 'the spin did not notice the shut-down context'
+    finally:
+        node.destroy_node()
+        context.destroy()
