@@ -77,9 +77,9 @@ __all__ = ['refine_fit', 'refine_joint']
 
 _STAGE1_TOL = 1e-2
 """Relative cost change that ends stage 1 when stage 2 follows: it only has to find the basin.
-1e-5 took a fifth more evaluations than 1e-3 for the same estimates; 1e-2 took 8 % less time
-per window than 1e-3 on benchmarks/fit_stages.py's family, every estimate within 0.17 of its
-std of the 1e-3 one and every mode resolved alike (42 windows)."""
+1e-5 took a fifth more evaluations than 1e-3 for the same estimates; 1e-2 took 5-11 % less
+time per window than 1e-3 in paired runs on 42 windows of benchmarks/efficiency.py's
+conditions, every estimate within 0.17 of its std of the 1e-3 one, every mode resolved alike."""
 
 CHI2_STEP = 0.01
 """The prewhitened polish ends when a step lowers the cost (in noise units) by less than this:
