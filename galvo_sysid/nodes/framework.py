@@ -443,18 +443,26 @@ def spin(node: Node, *, threads: int = 1, wake: float = SPIN_WAKE) -> None:
     """Run the node's callbacks until its context is shut down (Ctrl-C, SIGTERM).
 
     Like ``rclpy.spin``, but no wait lasts longer than ``wake`` seconds (see
-    :data:`SPIN_WAKE`), so a shutdown whose wake-up was lost still ends the spin.
+    :data:`SPIN_WAKE`), so a shutdown whose wake-up was lost still ends the spin. The bound
+    is one timer of the node's own, not ``spin_once``'s timeout, which makes a new rcl timer
+    for every wait.
     """
     executor = (MultiThreadedExecutor(num_threads=threads, context=node.context) if threads > 1
                 else SingleThreadedExecutor(context=node.context))
+    timer = node.create_timer(wake, _wake_up)
     try:
         executor.add_node(node)
         while node.context.ok():
-            executor.spin_once(timeout_sec=wake)
+            executor.spin_once()
     except ExternalShutdownException:  # the context went down during a wait: the same end
         pass
     finally:
         executor.shutdown(timeout_sec=wake)
+        node.destroy_timer(timer)
+
+
+def _wake_up() -> None:
+    """The callback of :func:`spin`'s timer: its only job is to end the executor's wait."""
 
 
 def run_node(factory: Callable[[], Node], *, args: Sequence[str] | None = None,
