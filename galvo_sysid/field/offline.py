@@ -188,7 +188,8 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
                                     window.first_stamp, window.last_stamp, outcome.result,
                                     verdict))
         if pooling == 'joint':
-            _keep(kept, window, limit=int(joint_windows))
+            _keep(kept, window, limit=int(joint_windows),
+                  set_aside=[i for i, _ in outcome.result.set_aside])
         if len(spectra) < response_windows and window.moves >= 3 and (
                 not spectra or spectra[0][0].shape[1] == window.current.shape[1]):
             spectra.append((window.current, window.encoder))

@@ -116,6 +116,35 @@ def test_joint_windows_stay_spread_over_the_angles() -> None:
     assert len(kept) == 4
 
 
+def test_the_joint_fit_takes_screened_windows_and_one_window_per_angle_and_length() -> None:
+    """A held window leaves out the moves its screening set aside; windows of one signed
+    target angle and record length become one window of all their moves, in the order held;
+    other angles or lengths stay apart."""
+    from galvo_sysid.field.pooling import _keep, joint_records
+    from galvo_sysid.monitor.moves import Window
+
+    def window(index: int, angle: float, *, moves: int = 5, n: int = 64) -> Window:
+        data = np.arange(moves * n, dtype=float).reshape(moves, n) + 1000.0 * index
+        return Window(index=index, target_angle=angle, sample_period=TAU, current=data,
+                      encoder=-data, move_ids=tuple(10 * index + i for i in range(moves)),
+                      first_stamp=0.0, last_stamp=0.0, partial=False)
+
+    kept: list[Window] = []
+    _keep(kept, window(0, 1.0), limit=8, set_aside=[1, 3])
+    _keep(kept, window(1, -1.0), limit=8)
+    _keep(kept, window(2, 1.0), limit=8)
+    _keep(kept, window(3, 1.0, n=80), limit=8)
+    _keep(kept, window(4, 2.0), limit=8, set_aside=[0, 1, 2])  # 2 moves left: not held
+    assert kept[0].move_ids == (0, 2, 4)
+    np.testing.assert_array_equal(kept[0].current, window(0, 1.0).current[[0, 2, 4]])
+    np.testing.assert_array_equal(kept[0].encoder, -kept[0].current)
+    assert [w.index for w in kept] == [0, 1, 2, 3]
+    records = joint_records(kept)
+    assert [c.shape for c, _ in records] == [(8, 64), (5, 64), (5, 80)]
+    np.testing.assert_array_equal(records[0][0], np.vstack([kept[0].current, kept[2].current]))
+    np.testing.assert_array_equal(records[0][1], np.vstack([kept[0].encoder, kept[2].encoder]))
+
+
 def test_parallel_fits_give_identical_results(bag: Path) -> None:
     one = identify_bag(bag, jobs=1)
     two = identify_bag(bag, jobs=2)

@@ -480,7 +480,7 @@ def test_the_evidence_of_every_mode_from_one_factorisation_is_the_scan_at_its_po
     what a one-candidate scan of each mode at its own point gives, on one window and on two
     windows weighed differently, at the truth and at a point off it (a mode whose columns
     explain little, the third, included)."""
-    from galvo_sysid.ident.refine.profile import _scan, evidence
+    from galvo_sysid.ident.refine.profile import evidence
 
     r = REFERENCE_MODEL
     one = [simulate_window(PSI, moves=30, seed=3)]
@@ -492,10 +492,58 @@ def test_the_evidence_of_every_mode_from_one_factorisation_is_the_scan_at_its_po
             omega = np.array(r.natural_frequencies) * shift
             zeta = np.array(r.damping_ratios)
             got = evidence(joint, omega, zeta, 0.6 * TAU)
-            want = [_scan(joint, i, omega, zeta, 0.6 * TAU, omega[i:i + 1], zeta[i:i + 1])[0][0]
+            want = [joint.scan(i, omega, zeta, 0.6 * TAU, omega[i:i + 1], zeta[i:i + 1])[0][0]
                     for i in range(r.n_modes)]
             np.testing.assert_allclose(got, want, rtol=1e-9)
             assert min(got) > 0
+
+
+def test_a_joint_scan_shares_the_candidates_of_equal_records_and_sums_the_windows() -> None:
+    """The joint scan is the windows' own scans summed with their weights (the residue their
+    weighted mean), whether the windows' records have one length (the candidates' transforms
+    made once) or not; and the transforms depend on the record length alone."""
+    r = REFERENCE_MODEL
+    short = simulate_window(0.5, moves=30, seed=4)
+    windows = [simulate_window(PSI, moves=30, seed=3), simulate_window(-PSI, moves=30, seed=5),
+               (short[0][:, :400], short[1][:, :400])]
+    joint, _, _ = _fit_problem(windows)
+    joint.set_weights(joint.weights * np.array([1.0, 2.0, 0.5]))
+    omega = np.array(r.natural_frequencies) * 1.001
+    zeta = np.array(r.damping_ratios)
+    w_c = omega[1] * np.linspace(0.98, 1.02, 7)
+    z_c = np.geomspace(0.003, 0.05, 7)
+    gain, k = joint.scan(1, omega, zeta, 0.6 * TAU, w_c, z_c)
+    own = [p.scan(1, omega, zeta, 0.6 * TAU, w_c, z_c) for p in joint.problems]
+    wt2 = joint.weights ** 2
+    np.testing.assert_allclose(gain, sum(w * g for w, (g, _) in zip(wt2, own, strict=True)),
+                               rtol=1e-12)
+    np.testing.assert_allclose(k, sum(w * kk for w, (_, kk) in zip(wt2, own, strict=True))
+                               / wt2.sum(), rtol=1e-12)
+    a, b, c = (p.candidate_transforms(0.6 * TAU, w_c, z_c)[1] for p in joint.problems)
+    np.testing.assert_array_equal(a, b)  # one length: the same transforms
+    assert c.shape != a.shape
+
+
+def test_the_quadratic_check_allows_a_minimum_beside_the_fit_but_not_a_flat_side() -> None:
+    """Rises at -3, -1, +1, +3 std: a parabola whose minimum is half a std beside the fit
+    (what a joint fit's looser profile shows) passes; one side flatter than the parabola or a
+    minimum over a std away fail; no rise at either 1 std leaves nothing to compare (passed,
+    as before: a local profile's level would be 0)."""
+    from galvo_sysid.ident.refine.profile import _quadratic
+
+    def parabola(u0: float) -> np.ndarray:
+        u = np.array([-3.0, -1.0, 1.0, 3.0])
+        return np.maximum((u - u0) ** 2 - u0 ** 2, 0.0)
+
+    assert _quadratic(parabola(0.0))
+    assert _quadratic(parabola(-0.5))  # the joint fit's mode 1 on the paper's 19-angle bag
+    assert _quadratic(np.array([5.96, 0.0, 2.14, 12.95]))
+    assert not _quadratic(parabola(1.5))
+    flat = parabola(0.0)
+    flat[3] = 0.6 * 9.0
+    assert not _quadratic(flat)
+    assert _quadratic(np.array([9.0, 0.0, 0.0, 9.0]))
+    assert not _quadratic(np.array([9.0, 0.0, 1.0, 2.0]))
 
 
 @pytest.mark.parametrize('seed', [0, 1, 4])
@@ -508,7 +556,6 @@ def test_a_weak_mode_between_the_band_grid_points_gets_the_span_of_its_fine_prof
     from galvo_sysid.ident.refine.joint import covariance
     from galvo_sysid.ident.refine.profile import (
         PROFILE_LEVEL,
-        _scan,
         check_linearised,
         profile_modes,
     )
@@ -527,8 +574,8 @@ def test_a_weak_mode_between_the_band_grid_points_gets_the_span_of_its_fine_prof
     omega, zeta, lag = joint.unpack(x)
     w = omega[2] * np.exp(np.linspace(-0.02, 0.02, 801))
     z = np.geomspace(3e-4, 0.05, 60)
-    gain, _ = _scan(joint, 2, omega, zeta, lag, np.concatenate([[omega[2]], np.repeat(w, z.size)]),
-                    np.concatenate([[zeta[2]], np.tile(z, w.size)]))
+    gain, _ = joint.scan(2, omega, zeta, lag, np.concatenate([[omega[2]], np.repeat(w, z.size)]),
+                         np.concatenate([[zeta[2]], np.tile(z, w.size)]))
     rise = (gain[0] - gain[1:]).reshape(w.size, z.size).min(axis=1)
     plausible = w[rise < PROFILE_LEVEL]
     half = 0.5 * (plausible.max() - plausible.min())

@@ -268,8 +268,7 @@ def _starts(joint: JointProblem, initial: ModalModel, x_init: NDArray[np.float64
             grid = np.geomspace(lo * 1.01, hi / 1.01, scan_points)
             w_c = np.concatenate([[omega_scan[i]], grid])
             z_c = np.concatenate([[zeta_init[i]], np.full(grid.size, damping_start)])
-            gains = sum(wt * wt * prob.scan(i, omega_scan, zeta_init, lag0, w_c, z_c)[0]
-                        for prob, wt in zip(joint.problems, joint.weights, strict=True))
+            gains = joint.scan(i, omega_scan, zeta_init, lag0, w_c, z_c)[0]
             best = int(np.argmax(gains))
             omega_scan[i] = float(w_c[best])
             evidence[i] = float(gains[best])

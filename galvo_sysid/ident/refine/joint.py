@@ -125,6 +125,29 @@ class JointProblem:
         self._parts: tuple[list[tuple[NDArray[np.float64], ...]], NDArray[np.float64]] = (
             [], np.zeros((0, 0)))
 
+    def scan(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64], lag: float,
+             w_c: NDArray[np.float64], z_c: NDArray[np.float64]) -> tuple[
+                 NDArray[np.float64], NDArray[np.float64]]:
+        """Joint cost reduction of mode i at candidates (w_c, z_c), the other modes fixed, and
+        the candidates' residues (the windows' weighted mean).
+
+        The windows' :meth:`WindowProblem.scan` summed with their weights; windows whose
+        records have one length share the candidates' transforms (made once, not once per
+        window: the same numbers).
+        """  # noqa: D205
+        gain = np.zeros(w_c.size)
+        k_sum = np.zeros(w_c.size)
+        total = 0.0
+        shared = {}
+        for prob, wt in zip(self.problems, self.weights, strict=True):
+            if prob.n not in shared:
+                shared[prob.n] = prob.candidate_transforms(lag, w_c, z_c)
+            g, k = prob.scan(i, omega, zeta, lag, w_c, z_c, shared=shared[prob.n])
+            gain += wt * wt * g
+            k_sum += wt * wt * k
+            total += wt * wt
+        return gain, k_sum / total
+
     # -- parameters ----------------------------------------------------------------------
     @property
     def estimate_lag(self) -> bool:

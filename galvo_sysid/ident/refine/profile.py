@@ -67,8 +67,9 @@ holds and its profile is not scanned (saves time)."""
 
 QUADRATIC_SHORTFALL = 0.75
 """A strong mode's cost must rise, at 3 linearised std of its frequency either side (the
-damping minimised out), by this share of the 9 times its rise at 1 std that a quadratic cost
-would; else its linearised std does not stand and it is profiled locally."""
+damping minimised out), by this share of what the parabola through its rises at -1, 0 and +1
+std gives there (9 times the rise at 1 std when the parabola's minimum is at the fit); else
+its linearised std does not stand and it is profiled locally."""
 
 _DAMPING = tuple(float(z) for z in np.geomspace(3e-4, 0.2, 8))
 _POINTS = 32
@@ -104,28 +105,13 @@ class ModeProfile:
         return self.evidence >= MODE_EVIDENCE and (self.local or covered < 0.5)
 
 
-def _scan(joint: JointProblem, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
-          lag: float, w_c: NDArray[np.float64],
-          z_c: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Joint cost reduction of mode i at the candidates, and their (weighted mean) residue."""
-    gain = np.zeros(w_c.size)
-    k_sum = np.zeros(w_c.size)
-    total = 0.0
-    for prob, wt in zip(joint.problems, joint.weights, strict=True):
-        g, k = prob.scan(i, omega, zeta, lag, w_c, z_c)
-        gain += wt * wt * g
-        k_sum += wt * wt * k
-        total += wt * wt
-    return gain, k_sum / total
-
-
 def evidence(joint: JointProblem, omega: NDArray[np.float64], zeta: NDArray[np.float64],
              lag: float) -> NDArray[np.float64]:
     """Cost reduction each mode brings at (omega, zeta, lag), the other modes fixed.
 
-    What :func:`_scan` gives with the mode's own point as the one candidate (the cost of the
-    regression without the mode's three columns less the cost with them), for all modes from
-    one factorisation per window: the drop in cost of a column group G is
+    What :meth:`JointProblem.scan` gives with the mode's own point as the one candidate (the
+    cost of the regression without the mode's three columns less the cost with them), for all
+    modes from one factorisation per window: the drop in cost of a column group G is
     ``c_G^T (C_GG)^-1 c_G``, c the least-squares coefficients and C = (Phi^T Phi)^-1. A
     mode whose columns are degenerate there is scanned.
     """
@@ -152,7 +138,7 @@ def evidence(joint: JointProblem, omega: NDArray[np.float64], zeta: NDArray[np.f
                 redo[i] = True
     for j in np.flatnonzero(redo | ~np.isfinite(out)):
         k = int(j)
-        out[k] = float(_scan(joint, k, omega, zeta, lag, omega[k:k + 1], zeta[k:k + 1])[0][0])
+        out[k] = float(joint.scan(k, omega, zeta, lag, omega[k:k + 1], zeta[k:k + 1])[0][0])
     return out
 
 
@@ -173,7 +159,7 @@ def profile_modes(joint: JointProblem, x: NDArray[np.float64],
         grid = np.geomspace(lo * 1.001, hi / 1.001, _POINTS)
         w_c = np.concatenate([[omega[i]], np.repeat(grid, damping.size)])
         z_c = np.concatenate([[zeta[i]], np.tile(damping, grid.size)])
-        gain, k = _scan(joint, i, omega, zeta, lag, w_c, z_c)
+        gain, k = joint.scan(i, omega, zeta, lag, w_c, z_c)
         delta = gain[0] - gain
         ok = delta < PROFILE_LEVEL
         best = int(np.argmin(delta))
@@ -228,7 +214,7 @@ def _omega_profile(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArr
         z = np.concatenate([z, np.broadcast_to(damping, (u.size, damping.size))], axis=1)
     w_c = np.concatenate([[omega[i]], np.repeat(w, z.shape[1])])
     z_c = np.concatenate([[zeta[i]], z.ravel()])
-    gain, k = _scan(joint, i, omega, zeta, lag, w_c, z_c)
+    gain, k = joint.scan(i, omega, zeta, lag, w_c, z_c)
     delta = (gain[0] - gain[1:]).reshape(u.size, -1)
     rows = np.arange(u.size)
     best = np.argmin(delta, axis=1)
@@ -282,6 +268,27 @@ def _near_fit(joint: JointProblem, i: int, x: NDArray[np.float64],
         k_span=(min(float(k[ok].min()), p.k_span[0]), max(float(k[ok].max()), p.k_span[1])))
 
 
+def _quadratic(rise: NDArray[np.float64]) -> bool:
+    """Whether a cost's rises at -3, -1, +1 and +3 std are those of a parabola (to
+    :data:`QUADRATIC_SHORTFALL`).
+
+    The parabola ``c u^2 + b u`` through the rises at -1, 0 and +1 may have its minimum up
+    to one std from the fit: a joint fit's profile lets each window's residue of the mode
+    free (:meth:`JointProblem.scan`), a looser model whose minimum lies a fraction of a std
+    beside the joint optimum. Beyond, or where the rises at 3 std fall short of the
+    parabola's, the cost is not the quadratic the linearised std stands for. No rise at
+    either 1 std (the rises are clipped at 0) leaves no parabola to compare with: passed, as
+    the local profile's level (9 times that rise) would be 0.
+    """  # noqa: D205
+    c = 0.5 * float(rise[2] + rise[1])
+    b = 0.5 * float(rise[2] - rise[1])
+    if not c > 0:
+        return True
+    return bool(abs(b) <= 2.0 * c
+                and rise[0] >= QUADRATIC_SHORTFALL * (9.0 * c - 3.0 * b)
+                and rise[3] >= QUADRATIC_SHORTFALL * (9.0 * c + 3.0 * b))
+
+
 def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[np.float64],
                      profiles: Sequence[ModeProfile],
                      band_list: Sequence[tuple[float, float]], *,
@@ -323,8 +330,7 @@ def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[n
             continue
         rise = _omega_profile(joint, i, x, np.array([-3.0, -1.0, 1.0, 3.0]), ridge,
                               band_list[i], spread=2)[0]
-        if rise[0] >= QUADRATIC_SHORTFALL * 9.0 * rise[1] \
-                and rise[3] >= QUADRATIC_SHORTFALL * 9.0 * rise[2]:
+        if _quadratic(rise):
             continue
         # The level of 3 std by the cost's own curvature at the fit: the linearised
         # (sandwich) std stands for a quadratic cost, and is scaled by how much farther

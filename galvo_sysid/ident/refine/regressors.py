@@ -120,17 +120,25 @@ class Regressors:
                                   t * t * (0.5 + f - f * f), t * t * f * f / 2], u0)
         self.rigid_single = fir([*pad, 0.0, t * (1 - f), t * (2 * f - 1), -t * f], u0)
 
+    def transform(self, h: NDArray[np.float64]) -> NDArray[np.complex128]:
+        """The transform of impulse responses h (m, N) that :meth:`convolve` takes: the same
+        for every record of N samples (several windows' scans share it)."""  # noqa: D205, D209
+        return np.asarray(sp_fft.rfft(h, self.nfft, axis=-1), dtype=np.complex128)
+
     def convolve(self, h: NDArray[np.float64]) -> NDArray[np.float64]:
         """Responses to the filtered input of the impulse responses h (m, N): (m,) + u.shape."""
-        hh = sp_fft.rfft(h, self.nfft, axis=-1)
+        return self.convolve_transformed(self.transform(h))
+
+    def convolve_transformed(self, hh: NDArray[np.complex128]) -> NDArray[np.float64]:
+        """:meth:`convolve` of the impulse responses whose :meth:`transform` is ``hh``."""
         prod = hh * self.uf_hat if self.uf_hat.ndim == 1 else hh[:, None, :] * self.uf_hat[None]
         return np.asarray(sp_fft.irfft(prod, self.nfft, axis=-1)[..., : self.n],
                           dtype=np.float64)
 
-    def convolve_filtered(self, h: NDArray[np.float64], taps: NDArray[np.float64]) -> tuple[
+    def convolve_filtered(self, hh: NDArray[np.complex128], taps: NDArray[np.float64]) -> tuple[
             NDArray[np.float64], NDArray[np.float64]]:
-        """:meth:`convolve` of h (m, N) for one record, and the same filtered by the FIR
-        ``taps``: both (m, N), one transform of h.
+        """:meth:`convolve` for one record of the impulse responses (m, N) whose
+        :meth:`transform` is ``hh``, and the same filtered by the FIR ``taps``: both (m, N).
 
         The filtered responses are exact from sample ``taps.size - 1`` on (earlier samples
         may hold the wrap-around of the circular convolution).
@@ -140,7 +148,6 @@ class Regressors:
         cached = self._taps_cache  # read once (see lag_impulse)
         if cached is None or cached[0] is not taps:
             cached = self._taps_cache = (taps, sp_fft.rfft(taps, self.nfft))
-        hh = sp_fft.rfft(h, self.nfft, axis=-1)
         prod = np.empty((2, *hh.shape), dtype=hh.dtype)
         np.multiply(hh, self.uf_hat, out=prod[0])
         np.multiply(prod[0], cached[1], out=prod[1])

@@ -38,6 +38,7 @@ if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray
 
     Floats: TypeAlias = Sequence[float] | NDArray[np.float64]
+    Candidates: TypeAlias = tuple[NDArray[np.complex128], NDArray[np.complex128]]
 
 __all__ = ['MIN_SAMPLES', 'WindowProblem', 'validate', 'window_records']
 
@@ -262,28 +263,39 @@ class WindowProblem:
         return out
 
     # -- scans -----------------------------------------------------------------------------
-    def _candidates(self, lag: float, w_c: NDArray[np.float64],
-                    z_c: NDArray[np.float64]) -> NDArray[np.float64]:
+    def candidate_transforms(self, lag: float, w_c: NDArray[np.float64],
+                             z_c: NDArray[np.float64]) -> Candidates:
+        """Candidate modes' powers and impulse responses' transforms, for :meth:`scan`.
+
+        They depend on the record length, the sample period and the input dynamics only: the
+        windows of a joint fit with records of one length share them.
+        """
+        _, e = powers(w_c, z_c, self.n, self.t)
+        h = self.regs.mode_impulses(w_c, z_c, lag, e)
+        return e, self.regs.transform(h)
+
+    def _candidates(self, lag: float, w_c: NDArray[np.float64], z_c: NDArray[np.float64],
+                    shared: Candidates | None = None) -> NDArray[np.float64]:
         """Whitened (forced, free cos, free sin) columns of candidate modes: (rows, 3, m).
 
         With a whitener, the rows past its head come from one transform per candidate (the
         filter folded into the convolution) and, for the free responses, in closed form
         (:meth:`Whitener.exponential_tail`); the head rows from the head. The same numbers as
-        whitening the columns (to rounding), at a third of the transforms.
+        whitening the columns (to rounding), at a third of the transforms. ``shared``: the
+        candidates' :meth:`candidate_transforms`, if already made.
         """
-        _, e = powers(w_c, z_c, self.n, self.t)
-        h = self.regs.mode_impulses(w_c, z_c, lag, e)
+        e, hh = self.candidate_transforms(lag, w_c, z_c) if shared is None else shared
         first, rows = self.first, self.k.size
-        m = h.shape[0]
+        m = hh.shape[0]
         wh = self.whiten
         if wh is None or not wh.filter.size - 1 <= wh.order < rows:
             out = np.empty((rows, 3, m))
-            out[:, 0] = self.regs.convolve(h)[:, first:].T
+            out[:, 0] = self.regs.convolve_transformed(hh)[:, first:].T
             out[:, 1] = e[:, first:].real.T
             out[:, 2] = e[:, first:].imag.T
             return self.apply_whitening(out)
         p = wh.order
-        forced, filtered = self.regs.convolve_filtered(h, wh.filter)
+        forced, filtered = self.regs.convolve_filtered(hh, wh.filter)
         tail = wh.exponential_tail(e, first, rows)
         out = np.empty((rows, 3, m))
         head = np.empty((p, 3, m))  # the head's rows as one product
@@ -325,13 +337,18 @@ class WindowProblem:
         return np.asarray(gain, dtype=np.float64), np.asarray(sol[:, 0], dtype=np.float64)
 
     def scan(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
-             lag: float, w_c: NDArray[np.float64],
-             z_c: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(cost reduction, residue) of mode i at each candidate (w_c, z_c), others fixed."""
+             lag: float, w_c: NDArray[np.float64], z_c: NDArray[np.float64], *,
+             shared: Candidates | None = None) -> tuple[NDArray[np.float64],
+                                                       NDArray[np.float64]]:
+        """(cost reduction, residue) of mode i at each candidate (w_c, z_c), others fixed.
+
+        ``shared``: the candidates' :meth:`candidate_transforms` (same lag), if already made.
+        """
         n = self.n_modes
         phi = self.columns(omega, zeta, lag)
         mine = np.array([1 + i, 1 + n + 2 * i, 2 + n + 2 * i])
-        return self._gains(np.delete(phi, mine, axis=1), self.yf, self._candidates(lag, w_c, z_c))
+        return self._gains(np.delete(phi, mine, axis=1), self.yf,
+                           self._candidates(lag, w_c, z_c, shared))
 
     def scan_new(self, omega: NDArray[np.float64], zeta: NDArray[np.float64], lag: float,
                  w_c: NDArray[np.float64], z_c: NDArray[np.float64]) -> NDArray[np.float64]:
