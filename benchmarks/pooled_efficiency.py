@@ -2,7 +2,8 @@
 
 Issue 13's second must-show: the pooled estimate (one refined fit of every window at once,
 :func:`~galvo_sysid.ident.identify.identify_joint`, started from the windows' inverse-variance
-pool and kept at its damping, exactly as ``galvo-sysid identify`` pools a bag) reaches the
+pool and kept at its damping, each window weighed by the noise model of its own fit, exactly
+as ``galvo-sysid identify`` pools a bag) reaches the
 bound of the data it pools: rms error / CRLB <= 1.2 for every parameter.
 
 Per noise seed 0..``--seeds``-1, the paper's scanner runs the paper's schedule (the 19 angles,
@@ -81,13 +82,17 @@ def pooled_window(seed: int, angles: list[float]) -> Window:
     records = windows_of(seed, angles)
     t0 = time.perf_counter()
     singles = []
+    noise_models = []  # each window's own fit's, reused by the joint fit as identify does
     for cur, enc in records:
         try:
             singles.append(identify_window(cur, enc, sample_period=TAU))
         except GalvoSysidError:
+            noise_models.append(None)
             continue
+        noise_models.append(singles[-1].noise_model)
     start = pool_results(singles).model if singles else truth.modal
-    res = identify_joint(records, sample_period=TAU, initial=start, keep_initial_damping=True)
+    res = identify_joint(records, sample_period=TAU, initial=start, keep_initial_damping=True,
+                         noise_models=noise_models)
     seconds = time.perf_counter() - t0
     rows = max(enc.shape[1] for _, enc in records)
     exact = crlb_known_noise(records, sample_period=TAU, model=truth.modal,

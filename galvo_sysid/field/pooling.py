@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from numpy.typing import NDArray
 
     from galvo_sysid.field.results import WindowResult
+    from galvo_sysid.ident.refine.whitener import NoiseModel
     from galvo_sysid.ident.result import IdentificationResult
     from galvo_sysid.model import PlantModel
     from galvo_sysid.monitor.moves import Window
@@ -94,10 +95,14 @@ def _pooled(windows: list[WindowResult], kept: list[Window], *, pooling: str,
             'no window of 3 moves or more'
         return (combined, 'inverse-variance', _notes(f'joint fit not made ({reason})', left_out),
                 len(results))
-    try:  # the windows were screened when they were fitted: not again
+    # the windows were screened when they were fitted (not again), and weighed by the noise
+    # models their fits reuse
+    by_index = {w.window_index: w.result.noise_model for w in windows}
+    try:
         joint = identify_joint(joint_records(kept), sample_period=periods.pop(),
                                initial=combined, target_angle=combined.target_angle,
-                               keep_initial_damping=True, model=model, screen_limit=0.0)
+                               keep_initial_damping=True, model=model, screen_limit=0.0,
+                               noise_models=_noise_models(kept, by_index))
     except GalvoSysidError as err:
         return (combined, 'inverse-variance',
                 _notes(f'joint fit failed: {one_line(err)}', left_out), len(results))
@@ -125,6 +130,16 @@ def joint_records(kept: Sequence[Window]) -> list[tuple[NDArray[np.float64],
         groups.setdefault((w.target_angle, w.current.shape[1]), []).append(w)
     return [(np.concatenate([w.current for w in g]), np.concatenate([w.encoder for w in g]))
             for g in groups.values()]
+
+
+def _noise_models(kept: Sequence[Window], by_index: dict[int, NoiseModel | None]) -> list[
+        NoiseModel | None]:
+    """Per record of :func:`joint_records`, its window's own fit's noise model: None for
+    windows merged there (their moves together are another window)."""  # noqa: D205, D209
+    groups: dict[tuple[float, int], list[Window]] = {}
+    for w in kept:
+        groups.setdefault((w.target_angle, w.current.shape[1]), []).append(w)
+    return [by_index.get(g[0].index) if len(g) == 1 else None for g in groups.values()]
 
 
 def _notes(*notes: str | None) -> str | None:

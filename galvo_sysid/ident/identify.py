@@ -57,6 +57,8 @@ if TYPE_CHECKING:
 
     from numpy.typing import ArrayLike, NDArray
 
+    from galvo_sysid.ident.refine.whitener import NoiseModel
+
 __all__ = ['METHODS', 'check_model_period', 'identify_joint', 'identify_window']
 
 METHODS = ('refined', 'paper-A', 'paper-B')
@@ -217,7 +219,8 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
                          lag_time_constant=refined.lag_time_constant,
                          fit_percent=refined.fit_percent, method='refined',
                          resolved=refined.resolved, set_aside=set_aside,
-                         crlb_std=_modal_only(refined.crlb_by_name()))
+                         crlb_std=_modal_only(refined.crlb_by_name()),
+                         noise_model=refined.noise_models[0] if refined.noise_models else None)
 
 
 def _screen(current: ArrayLike, encoder: ArrayLike, *, model: PlantModel,
@@ -278,7 +281,8 @@ def _refine_setup(model: PlantModel, opts: dict[str, Any], *,
 def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float,
                    initial: IdentificationResult | ModalModel | None = None,
                    target_angle: float | None = None, model: PlantModel | None = None,
-                   n_modes: int | None = None, **options: Any) -> IdentificationResult:
+                   n_modes: int | None = None, noise_models: Sequence[NoiseModel | None] = (),
+                   **options: Any) -> IdentificationResult:
     """Identify one modal model from several windows of the same plant (joint refined fit).
 
     The model (default: the paper's) sets modes, bands and input dynamics as for
@@ -289,10 +293,15 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
             :func:`identify_window` (M_w >= 3).
         sample_period: Sampling period [s].
         initial: Starting model; default: :func:`pool_results` of :func:`identify_window`
-            on each window (windows whose single fit fails still enter the joint fit).
+            on each window (windows whose single fit fails still enter the joint fit), whose
+            noise models the joint fit then reuses (unless ``noise_models`` are given).
         target_angle: Reported angle (default: the common estimated angle, nan if they differ).
         model: The scanner's model (:class:`~galvo_sysid.model.plant.PlantModel`).
         n_modes: Resonant modes (default the model's; another number needs ``bands``).
+        noise_models: Per window, the noise model its own refined fit weighed it with
+            (:attr:`IdentificationResult.noise_model`), reused instead of estimated anew (see
+            :func:`~galvo_sysid.ident.refine.refine_joint`); only for windows of exactly the
+            moves that fit had (e.g. screened already: ``screen_limit=0``).
         **options: ``bands``, ``reference``, ``min_angle_span`` and the refined options of
             :func:`identify_window` (``scan_points``, ``whiten_order``, ...), and
             ``keep_initial_damping`` (start from ``initial`` as it is; see
@@ -341,19 +350,24 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
         start = initial
     else:
         singles = []
+        models: list[NoiseModel | None] = []  # theirs, reused (one of other moves is not)
         for cur, enc in records:
             try:
                 singles.append(identify_window(
                     cur, enc, sample_period=sample_period, model=plant, n_modes=n_modes,
                     **{k: v for k, v in opts.items() if k != 'keep_initial_damping'}))
             except GalvoSysidError:
+                models.append(None)
                 continue
+            models.append(singles[-1].noise_model)
         start = pool_results(singles).model if singles else reference
+        noise_models = noise_models or models
     if start.n_modes != n_modes:
         raise ConfigurationError(f'the starting model has {start.n_modes} modes, not {n_modes}')
     dynamics, tuning = _refine_setup(plant, opts, base=RefineOptions(adequacy_limit=0.0))
     fit = refine_joint(records, sample_period=t, initial=start, bands=bands, dynamics=dynamics,
-                       estimate_lag=bool(opts.get('estimate_lag', True)), options=tuning)
+                       estimate_lag=bool(opts.get('estimate_lag', True)), options=tuning,
+                       noise_models=noise_models)
     if target_angle is None:
         est = np.array([_estimated_angle(enc) for _, enc in records])
         same = np.ptp(est) <= 0.01 * float(np.median(np.abs(est)))

@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from galvo_sysid.jsonsafe import json_safe
 from galvo_sysid.model import ModalModel
+
+if TYPE_CHECKING:
+    from galvo_sysid.ident.refine.whitener import NoiseModel
 
 __all__ = ['IdentificationResult', 'result_from_vectors']
 
@@ -44,6 +47,10 @@ class IdentificationResult:
             any unbiased estimator, with the stationary noise estimated from the moves' scatter
             (their own initial conditions taken out); a std above it means the fit's own
             noise model is not that noise (the fit is not efficient there).
+        noise_model: The stationary noise model the refined fit weighed the window with
+            (None otherwise): a joint fit of the same moves reuses it
+            (:func:`~galvo_sysid.ident.identify.identify_joint`'s ``noise_models``). Not
+            part of the result's data: left out of :meth:`to_dict` and of comparisons.
     """
 
     target_angle: float
@@ -63,6 +70,7 @@ class IdentificationResult:
     resolved: tuple[bool, ...] = ()
     set_aside: tuple[tuple[int, str], ...] = ()
     crlb_std: dict[str, float] = field(default_factory=dict)
+    noise_model: NoiseModel | None = field(default=None, compare=False, repr=False)
 
     @property
     def model(self) -> ModalModel:
@@ -87,7 +95,8 @@ class IdentificationResult:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict keyed by the field names (tuples as lists, non-finite as None)."""
-        out: dict[str, Any] = json_safe({f.name: getattr(self, f.name) for f in fields(self)})
+        out: dict[str, Any] = json_safe({f.name: getattr(self, f.name) for f in fields(self)
+                                         if f.compare})
         return out
 
 

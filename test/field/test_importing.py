@@ -93,7 +93,8 @@ def direct(simulated: dict[str, Any]) -> dict[str, IdentificationResult]:
     combined = pool_results(list(out.values()))
     out['pooled'] = identify_joint(list(windows.values()), sample_period=PERIOD,
                                    initial=combined, target_angle=combined.target_angle,
-                                   keep_initial_damping=True, model=PAPER_MODEL)
+                                   keep_initial_damping=True, model=PAPER_MODEL,
+                                   noise_models=[r.noise_model for r in out.values()])
     return out
 
 

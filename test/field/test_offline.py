@@ -63,7 +63,8 @@ def test_pooled_is_the_joint_fit_started_from_the_combination(bag: Path) -> None
     windows = _bag_windows(bag)
     expected = identify_joint([(w.current, w.encoder) for w in windows], sample_period=TAU,
                               initial=start, target_angle=start.target_angle,
-                              keep_initial_damping=True)
+                              keep_initial_damping=True, screen_limit=0.0,
+                              noise_models=[w.result.noise_model for w in found.windows])
     assert found.pooled is not None
     assert found.pooled.to_dict() == expected.to_dict()  # (target_angle nan: no ==)
     assert found.pooled.moves == 400

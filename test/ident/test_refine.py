@@ -309,6 +309,41 @@ def test_a_joint_fit_needs_3_moves_per_window_and_keeps_no_window_nuisance() -> 
     assert np.isnan(joint.offset)
 
 
+def test_a_joint_fit_reuses_the_noise_models_of_the_windows_own_fits() -> None:
+    """Each window's fit gives the noise model it weighed the window with; a joint fit of the
+    same moves given those models weighs with them (a model four times too noisy gives a
+    quarter of the chi2), estimates what it estimates without them (which estimates a model
+    anew at its start) to a fraction of a std, and ignores a model of other moves. The
+    result carries the model without it entering its data."""
+    from dataclasses import replace
+
+    from galvo_sysid.ident import identify_window
+
+    windows = [simulate_window(PSI, moves=30, seed=3), simulate_window(-2 * PSI, moves=30,
+                                                                        seed=4)]
+    singles = [identify_window(c, e, sample_period=TAU) for c, e in windows]
+    models = [r.noise_model for r in singles]
+    assert all(m is not None and m.moves == 30 for m in models)
+    assert 'noise_model' not in singles[0].to_dict()
+    assert replace(singles[0], noise_model=None) == singles[0]
+
+    def joint(noise_models: list[Any]) -> Any:
+        return refine_joint(windows, sample_period=TAU, initial=singles[0].model,
+                            noise_models=noise_models)
+
+    fresh, reused = joint([]), joint(models)
+    assert reused.noise_models == tuple(models)
+    assert fresh.noise_models != reused.noise_models  # estimated anew at the joint start
+    std = np.sqrt(np.diag(fresh.covariance))
+    shift = np.array([reused.model.parameters()[k] - fresh.model.parameters()[k]
+                      for k in fresh.parameter_names if k != 'lag']) / std[:-1]
+    assert np.max(np.abs(shift)) < 0.3
+    noisier = [replace(m, variance=4.0 * m.variance) for m in models]
+    assert joint(noisier).chi2 == pytest.approx(reused.chi2 / 4.0, rel=1e-3)
+    other = [replace(m, moves=29) for m in models]
+    assert joint(other).noise_models == fresh.noise_models
+
+
 def test_the_starting_scan_finds_a_mode_started_10_percent_off() -> None:
     """Mode 3 started 10 % high: the scan over its band finds it; without the scan the fit
     stays in a wrong basin (so the scan is what this test checks)."""

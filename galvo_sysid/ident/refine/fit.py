@@ -63,7 +63,7 @@ from galvo_sysid.ident.refine.profile import (
     widen_to_profiles,
 )
 from galvo_sysid.ident.refine.result import RefinedFit
-from galvo_sysid.ident.refine.whitener import Whitener
+from galvo_sysid.ident.refine.whitener import NoiseModel, Whitener
 from galvo_sysid.ident.refine.window import WindowProblem, window_records
 from galvo_sysid.model.dynamics import InputDynamics, check_sample_period, split_delay
 from galvo_sysid.model.modal import ModalModel
@@ -134,6 +134,7 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
                  initial: ModalModel, dynamics: InputDynamics = _DEFAULT_DYNAMICS,
                  estimate_lag: bool = True, bands: Sequence[tuple[float, float]] | None = None,
                  noise_filters: Sequence[Whitener | None] | None = None,
+                 noise_models: Sequence[NoiseModel | None] = (),
                  options: RefineOptions = _JOINT_OPTIONS) -> RefinedFit:
     """Fit one modal model to several windows of the same plant at once (the pooled estimate).
 
@@ -152,6 +153,11 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
             :func:`~galvo_sysid.ident.refine.order.window_noise_filters`): the fit is then one
             prewhitened stage, and fits of different models to the same windows have
             comparable ``chi2``.
+        noise_models: Per window, a stationary noise model already estimated from the same
+            moves (e.g. the window's own fit's, :attr:`RefinedFit.noise_models`): the window
+            is whitened and weighed with it instead of a model estimated anew at the joint
+            start (see :meth:`~galvo_sysid.ident.refine.joint.JointProblem.prewhiten`; a model
+            of other moves or rows is not used).
         options: Tuning; by default no adequacy check (``adequacy_limit=0``).
 
     Returns:
@@ -169,14 +175,14 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
         raise InvalidDataError('no windows to fit')
     return _fit(windows, sample_period=sample_period, initial=initial, dynamics=dynamics,
                 estimate_lag=estimate_lag, bands=bands, extra_starts=(), options=options,
-                noise_filters=noise_filters, min_moves=3)
+                noise_filters=noise_filters, min_moves=3, noise_models=noise_models)
 
 
 def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float,
          initial: ModalModel, dynamics: InputDynamics, estimate_lag: bool,
          bands: Sequence[tuple[float, float]] | None, extra_starts: Sequence[ModalModel],
          options: RefineOptions, noise_filters: Sequence[Whitener | None] | None,
-         min_moves: int) -> RefinedFit:
+         min_moves: int, noise_models: Sequence[NoiseModel | None] = ()) -> RefinedFit:
     """The refined fit of one or several windows (see the module docs)."""
     t = check_sample_period(sample_period)
     opt = options
@@ -238,7 +244,7 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
             best = (key, x1)
     x = best[1] if best is not None else starts[0]
     if two_stage:
-        joint.prewhiten(x, whiten_order)
+        joint.prewhiten(x, whiten_order, noise_models)
         final_tol = max(1e-8, CHI2_STEP / max(joint.cost(x), 1.0))
         x = polish(x)
     profiles: list[ModeProfile] = []
@@ -378,7 +384,7 @@ def _result(joint: JointProblem, x: NDArray[np.float64],
         unresolved_modes=tuple(i + 1 for i in unresolved),
         residual_to_noise=tuple(sorted(ratios.items())),
         chi2=joint.cost(x), rows=int(sum(prob.yf.size for prob in joint.problems)),
-        crlb_covariance=crlb)
+        crlb_covariance=crlb, noise_models=joint.noise_models)
 
 
 def _start_vector(joint: JointProblem, model: ModalModel, lower: NDArray[np.float64],

@@ -17,7 +17,6 @@ it falls back to the white-noise formula ``sigma^2 A^-1``.
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -27,6 +26,7 @@ from galvo_sysid.errors import IdentificationError
 from galvo_sysid.ident.refine.options import DEFAULT_WHITEN_ORDER
 from galvo_sysid.ident.refine.whitener import (
     BOUND_ORDER_DIVISOR,
+    NoiseModel,
     noise_whitener,
     stationary_noise_model,
 )
@@ -62,10 +62,17 @@ class JointProblem:
         self.n_eval = 0
         self.whiten_order = DEFAULT_WHITEN_ORDER
         self.stationary = False  # set by prewhiten (see there)
+        self.noise_models: tuple[NoiseModel | None, ...] = ()  # set by prewhiten
         self.set_weights(weights)
 
-    def prewhiten(self, x: NDArray[np.float64], order: int) -> None:
+    def prewhiten(self, x: NDArray[np.float64], order: int,
+                  models: Sequence[NoiseModel | None] = ()) -> None:
         """Whiten each window by its noise model at x, and weigh it by its noise.
+
+        ``models``: per window, a noise model already estimated from the same moves (e.g. by
+        the window's own fit, at its own estimate: :attr:`RefinedFit.noise_models`), used as
+        it is instead of estimating one at x; None (or a model of other moves or rows, or of
+        other lags than this fit's): estimated here.
 
         The noise model is the stationary noise of the moves' deviations from the window's
         mean at x, each move's own nuisance (the ringing, lag state and offset it starts
@@ -93,17 +100,28 @@ class JointProblem:
         n = self.n_modes
         weights = []
         stationary = True
-        for prob, coef in zip(self.problems, self.coefficients(x), strict=True):
+        given = list(models) + [None] * (len(self.problems) - len(models))
+        used: list[NoiseModel | None] = []
+        for prob, coef, model in zip(self.problems, self.coefficients(x), given, strict=True):
+            lags = max(order, prob.k.size // BOUND_ORDER_DIVISOR)
+            if model is not None and (model.moves, model.rows, len(model.autocovariance)) \
+                    == (prob.moves, prob.k.size, lags + 1):
+                prob.set_whitening(model.whitener())
+                weights.append(model.weight())
+                used.append(model)
+                continue
             dev = prob.deviations(omega, zeta, lag, coef)
             nuis = prob.columns(omega, zeta, lag, whitened=False)[:, 1 + n:]
-            found = stationary_noise_model(
-                dev, nuis, max(order, dev.shape[1] // BOUND_ORDER_DIVISOR), second_order=order)
+            found = stationary_noise_model(dev, nuis, lags, second_order=order)
             if found is not None:
                 chain, var = found
-                single, factor = chain.single(max(order, dev.shape[1] // BOUND_ORDER_DIVISOR))
-                prob.set_whitening(single)
-                weights.append(1.0 / max(math.sqrt(var * factor / (prob.moves - 1)), 1e-300))
+                model = NoiseModel(tuple(float(v) for v in chain.autocovariance(lags)), var,
+                                   prob.moves, prob.k.size)
+                prob.set_whitening(model.whitener())
+                weights.append(model.weight())
+                used.append(model)
                 continue
+            used.append(None)
             stationary = False
             prob.set_whitening(noise_whitener(dev, order,
                                               float(np.sqrt(np.mean(prob.yf_raw**2)))))
@@ -112,6 +130,7 @@ class JointProblem:
                                      1e-300))
         self.set_weights(weights)
         self.stationary = stationary
+        self.noise_models = tuple(used)
 
     def set_weights(self, weights: Floats) -> None:
         """Use new window weights (e.g. after prewhitening); forgets the cached solution."""

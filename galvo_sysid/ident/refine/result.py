@@ -20,6 +20,7 @@ from galvo_sysid.model.dynamics import InputDynamics
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray
 
+    from galvo_sysid.ident.refine.whitener import NoiseModel
     from galvo_sysid.model.modal import ModalModel
 
 __all__ = ['RefinedFit', 'filtered_fit_percent', 'model_fit_percent']
@@ -61,6 +62,9 @@ class RefinedFit:
         crlb_covariance: Cramer-Rao bound of the same parameters as ``covariance`` (see
             :func:`~galvo_sysid.ident.refine.joint.covariance`); not widened for unresolved
             modes (it is the local bound at the estimate).
+        noise_models: Per window, the stationary noise model the fit weighed it with (None
+            where it could not be made; empty without prewhitening): a joint fit of the same
+            moves can reuse it (``refine_joint(noise_models=...)``).
     """
 
     model: ModalModel
@@ -83,6 +87,7 @@ class RefinedFit:
     chi2: float = math.nan
     rows: int = 0
     crlb_covariance: NDArray[np.float64] | None = field(default=None, repr=False)
+    noise_models: tuple[NoiseModel | None, ...] = field(default=(), repr=False)
 
     @property
     def resolved(self) -> tuple[bool, ...]:

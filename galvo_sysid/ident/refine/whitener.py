@@ -16,6 +16,7 @@ passes reduce to one whitener of the first pass's lags for the fit
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -27,8 +28,8 @@ from scipy.linalg.lapack import dpotrf, dtrtri
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
-__all__ = ['BOUND_ITERATIONS', 'BOUND_ORDER_DIVISOR', 'Whitener', 'WhitenerChain', 'noise_whitener',
-           'stationary_noise_model']
+__all__ = ['BOUND_ITERATIONS', 'BOUND_ORDER_DIVISOR', 'NoiseModel', 'Whitener', 'WhitenerChain',
+           'noise_whitener', 'stationary_noise_model']
 
 
 def _taper(n: int) -> NDArray[np.float64]:
@@ -227,13 +228,50 @@ class WhitenerChain:
         same noise model to that many lags, with a head of ``lags`` rows instead of the sum
         of the stages' (the fit whitens every column with the head).
         """
+        r = self.autocovariance(lags)
+        return _levinson(_normalised(r)), float(r[0])
+
+    def autocovariance(self, lags: int) -> NDArray[np.float64]:
+        """Lags 0..``lags`` of the autocovariance of the noise the stages map to unit white
+        noise (what :meth:`single` makes its whitener from)."""  # noqa: D205, D209
         taps = sum(stage.filter.size for stage in self.stages)
         grid = _fft_size(max(8192, 16 * taps))
         gain = np.ones(grid // 2 + 1)
         for stage in self.stages:
             gain *= np.abs(sp_fft.rfft(stage.filter, grid)) ** 2
-        r = sp_fft.irfft(1.0 / gain, grid)[: lags + 1]
-        return _levinson(_normalised(r)), float(r[0])
+        return np.asarray(sp_fft.irfft(1.0 / gain, grid)[: lags + 1], dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """A window's stationary noise model as its fit weighed it.
+
+    A later fit of the same moves (a joint fit started from the windows' fits) reuses it
+    instead of estimating it again.
+
+    Attributes:
+        autocovariance: Lags 0..L of the noise of unit whitened variance
+            (:meth:`WhitenerChain.autocovariance`): the fit's whitener of L lags is made from
+            it (:meth:`whitener`).
+        variance: The whitened variance per row of a move's deviation
+            (:func:`stationary_noise_model`).
+        moves: The window's moves.
+        rows: The window's rows (samples from the first filtered row on).
+    """
+
+    autocovariance: tuple[float, ...]
+    variance: float
+    moves: int
+    rows: int
+
+    def whitener(self) -> Whitener:
+        """The window's whitener (:meth:`WhitenerChain.single`'s)."""
+        return _levinson(_normalised(np.array(self.autocovariance, dtype=float)))
+
+    def weight(self) -> float:
+        """The window's weight: one over its average's whitened noise std."""
+        factor = float(self.autocovariance[0])
+        return 1.0 / max(math.sqrt(self.variance * factor / (self.moves - 1)), 1e-300)
 
 
 def _levinson(autocovariance: NDArray[np.float64]) -> Whitener:
