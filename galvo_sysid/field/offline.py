@@ -14,7 +14,10 @@ The pooled estimate (the bag's plant, from all windows; the nodes have no such t
 the refined method, :func:`~galvo_sysid.ident.identify.identify_joint`: one fit of the modal model
 to the identified windows at once, started from
 :func:`~galvo_sysid.ident.pool.pool_results` (the inverse-variance combination of the windows'
-results), several times sharper on the weakly excited third mode. If the joint fit fails,
+results), several times sharper on the weakly excited third mode. It does not repeat what the
+windows' fits did: it takes the moves their screening kept, and weighs each window with the
+noise model its own fit estimated; windows of one signed angle and record length are one
+window there (:func:`~galvo_sysid.field.pooling.joint_records`). If the joint fit fails,
 the inverse-variance combination is reported instead, with the reason. For the paper
 methods the pooled estimate is the inverse-variance combination.
 
