@@ -125,21 +125,24 @@ def joint_records(kept: Sequence[Window]) -> list[tuple[NDArray[np.float64],
     """  # noqa: D205
     import numpy as np
 
+    return [(np.concatenate([w.current for w in g]), np.concatenate([w.encoder for w in g]))
+            for g in _same_angle_and_length(kept)]
+
+
+def _same_angle_and_length(kept: Sequence[Window]) -> list[list[Window]]:
+    """The held windows grouped by signed target angle and record length, in the order held."""
     groups: dict[tuple[float, int], list[Window]] = {}
     for w in kept:
         groups.setdefault((w.target_angle, w.current.shape[1]), []).append(w)
-    return [(np.concatenate([w.current for w in g]), np.concatenate([w.encoder for w in g]))
-            for g in groups.values()]
+    return list(groups.values())
 
 
 def _noise_models(kept: Sequence[Window], by_index: dict[int, NoiseModel | None]) -> list[
         NoiseModel | None]:
     """Per record of :func:`joint_records`, its window's own fit's noise model: None for
     windows merged there (their moves together are another window)."""  # noqa: D205, D209
-    groups: dict[tuple[float, int], list[Window]] = {}
-    for w in kept:
-        groups.setdefault((w.target_angle, w.current.shape[1]), []).append(w)
-    return [by_index.get(g[0].index) if len(g) == 1 else None for g in groups.values()]
+    return [by_index.get(g[0].index) if len(g) == 1 else None
+            for g in _same_angle_and_length(kept)]
 
 
 def _notes(*notes: str | None) -> str | None:

@@ -121,7 +121,7 @@ def test_the_joint_fit_takes_screened_windows_and_one_window_per_angle_and_lengt
     """A held window leaves out the moves its screening set aside; windows of one signed
     target angle and record length become one window of all their moves, in the order held;
     other angles or lengths stay apart."""
-    from galvo_sysid.field.pooling import _keep, joint_records
+    from galvo_sysid.field.pooling import _keep, _noise_models, joint_records
     from galvo_sysid.monitor.moves import Window
 
     def window(index: int, angle: float, *, moves: int = 5, n: int = 64) -> Window:
@@ -144,6 +144,9 @@ def test_the_joint_fit_takes_screened_windows_and_one_window_per_angle_and_lengt
     assert [c.shape for c, _ in records] == [(8, 64), (5, 64), (5, 80)]
     np.testing.assert_array_equal(records[0][0], np.vstack([kept[0].current, kept[2].current]))
     np.testing.assert_array_equal(records[0][1], np.vstack([kept[0].encoder, kept[2].encoder]))
+    # each record weighed by its window's own noise model; a merged one's is made anew
+    models = {i: f'model of window {i}' for i in range(4)}
+    assert _noise_models(kept, models) == [None, 'model of window 1', 'model of window 3']
 
 
 def test_parallel_fits_give_identical_results(bag: Path) -> None:
