@@ -12,7 +12,11 @@ or the ``--angles`` first of them, each 100 forward moves with the return moves 
 alone (``identify_window``), the windows are pooled by the joint fit, and the bound is
 evaluated at the true parameters on the same windows with the noise's true spectrum
 (``crlb_known_noise`` with the simulator's ``residual_noise_autocovariance``: the joint
-Fisher matrix, each window's nuisance partialled out). The table has the columns of
+Fisher matrix, each window's nuisance partialled out). With ``--windows-per-angle k`` each
+angle has k windows of 100 forward moves, each identified alone; the joint fit takes the k
+windows of an angle as one (their moves together, as ``galvo-sysid identify`` pools windows
+of one signed angle and record length), and the bound is the k windows' apart. The table has
+the columns of
 ``benchmarks/efficiency.py`` (its statistics are reused): median |error| against 1.25 x 0.674
 x the bound, efficiency rms(error) / rms(bound), bias, max |error| / bound, calibration
 rms(error / reported std), the reported std over the bound, the bound estimated from the
@@ -23,6 +27,7 @@ Usage (from the repository root; about 4 s per seed and process)::
 
     python benchmarks/pooled_efficiency.py                 # 40 seeds, 19 angles
     python benchmarks/pooled_efficiency.py --seeds 8 --angles 5
+    python benchmarks/pooled_efficiency.py --windows-per-angle 2   # 38 windows, 19 merged
 """
 
 from __future__ import annotations
@@ -50,10 +55,12 @@ from efficiency import Window, _cell, _load, false_fail_rate, parameter_stats, s
 
 from galvo_sysid import keep_freed_memory
 from galvo_sysid.errors import GalvoSysidError
+from galvo_sysid.field.pooling import joint_records
 from galvo_sysid.ident.identify import identify_joint, identify_window
 from galvo_sysid.ident.pool import pool_results
 from galvo_sysid.ident.refine.bound import crlb_at, crlb_known_noise
 from galvo_sysid.model import PAPER_ANGLES, PAPER_MODEL, TAU
+from galvo_sysid.monitor.moves import Window as MovesWindow
 from galvo_sysid.sim.config import SimulatorConfig
 from galvo_sysid.sim.noise import residual_noise_autocovariance
 from galvo_sysid.sim.simulator import GalvoSimulator
@@ -76,10 +83,17 @@ def windows_of(seed: int, angles: list[float], moves: int = 100) -> Records:
     return [(np.array(cur[a]), np.array(enc[a])) for a in angles]
 
 
-def pooled_window(seed: int, angles: list[float]) -> Window:
-    """Identify every window, pool them by the joint fit, bound them all at the truth."""
+def pooled_window(seed: int, angles: list[float], per_angle: int = 1) -> Window:
+    """Identify every window, pool them by the joint fit, bound them all at the truth.
+
+    With ``per_angle`` > 1 each angle has that many windows of 100 forward moves, fitted
+    alone; the joint fit takes them as ``galvo-sysid identify`` does, one window per angle
+    (:func:`~galvo_sysid.field.pooling.joint_records`), and the bound is the windows' apart.
+    """
     truth = PAPER_MODEL
-    records = windows_of(seed, angles)
+    merged = windows_of(seed, angles, moves=100 * per_angle)
+    records = [(cur[i: i + 100], enc[i: i + 100]) for cur, enc in merged
+               for i in range(0, 100 * per_angle, 100)]
     t0 = time.perf_counter()
     singles = []
     noise_models = []  # each window's own fit's, reused by the joint fit as identify does
@@ -91,8 +105,17 @@ def pooled_window(seed: int, angles: list[float]) -> Window:
             continue
         noise_models.append(singles[-1].noise_model)
     start = pool_results(singles).model if singles else truth.modal
-    res = identify_joint(records, sample_period=TAU, initial=start, keep_initial_damping=True,
-                         noise_models=noise_models)
+    if per_angle > 1:  # the windows of one angle as one window (its noise model made anew)
+        held = [MovesWindow(index=j, target_angle=angles[j // per_angle], sample_period=TAU,
+                            current=cur, encoder=enc, move_ids=tuple(range(cur.shape[0])),
+                            first_stamp=0.0, last_stamp=0.0)
+                for j, (cur, enc) in enumerate(records)]
+        joint_input = joint_records(held)
+        noise_models = [None] * len(joint_input)
+    else:
+        joint_input = records
+    res = identify_joint(joint_input, sample_period=TAU, initial=start,
+                         keep_initial_damping=True, noise_models=noise_models)
     seconds = time.perf_counter() - t0
     rows = max(enc.shape[1] for _, enc in records)
     exact = crlb_known_noise(records, sample_period=TAU, model=truth.modal,
@@ -103,10 +126,10 @@ def pooled_window(seed: int, angles: list[float]) -> Window:
     return scored(res, exact, truth.modal, seconds=seconds, estimated=estimated)
 
 
-def _attempt(seed: int, angles: list[float]) -> Window | str:
+def _attempt(seed: int, angles: list[float], per_angle: int) -> Window | str:
     """pooled_window, or the one-line error it raised."""
     try:
-        return pooled_window(seed, angles)
+        return pooled_window(seed, angles, per_angle)
     except GalvoSysidError as exc:
         return f'{type(exc).__name__}: {exc}'
 
@@ -117,16 +140,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--seeds', type=int, default=40, help='noise seeds 0..N-1')
     parser.add_argument('--jobs', type=int, default=2, help='processes')
     parser.add_argument('--angles', type=int, default=len(PAPER_ANGLES),
-                        help="the first N of the paper's 19 angles (one window each)")
+                        help="the first N of the paper's 19 angles")
+    parser.add_argument('--windows-per-angle', type=int, default=1,
+                        help='windows of 100 moves per angle, each fitted alone and pooled as '
+                             'one (as galvo-sysid identify pools windows of one angle)')
     args = parser.parse_args(argv)
+    per_angle = max(1, args.windows_per_angle)
     angles = list(PAPER_ANGLES[: max(1, args.angles)])
     begun = time.perf_counter()
+    shape = '' if per_angle == 1 else f' ({per_angle} per angle, pooled as one per angle)'
     print(f'pooled joint fit against the Cramer-Rao bound of its windows: paper scanner, '
-          f'{len(angles)} windows of 100 moves (angles {angles[0]:g}..{angles[-1]:g} deg), '
-          f'noise seeds 0..{args.seeds - 1}')
+          f'{len(angles) * per_angle} windows of 100 moves{shape} (angles '
+          f'{angles[0]:g}..{angles[-1]:g} deg), noise seeds 0..{args.seeds - 1}')
     print(f'started {datetime.datetime.now().isoformat(timespec="seconds")}, load average '
           f'{_load()}\n')
-    tasks = [(seed, angles) for seed in range(args.seeds)]
+    tasks = [(seed, angles, per_angle) for seed in range(args.seeds)]
     if args.jobs > 1:
         with multiprocessing.get_context('fork').Pool(args.jobs) as pool:
             outcomes = pool.starmap(_attempt, tasks)
