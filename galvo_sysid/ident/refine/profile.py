@@ -12,7 +12,9 @@ the cost is scanned over a grid of its band and of damping ratios, the other mod
   mode's std is raised so that the farthest of them lies 3 std away
   (:func:`widen_to_profiles`);
 - a mode that lowers the cost by less than :data:`MODE_EVIDENCE`, or whose plausible
-  frequencies cover half its band, is not resolved;
+  frequencies cover half its band, is not resolved; nor is one where a frequency in another
+  basin than the fit's rises less than :data:`ELSEWHERE_LEVEL` (the fit is the best of many
+  noisy basins: the truth's may rise above it by more than one fixed point's would);
 - the band's grid steps about 1 % in frequency, coarser than a lightly damped mode's basin:
   a resolved mode is profiled again one grid step either side of its fit, finely, and its
   span reaches where that profile crosses the level (:func:`check_linearised`).
@@ -22,7 +24,9 @@ checked (:func:`check_linearised`): the cost, the damping minimised out, is eval
 linearised std either side of its frequency. Where it has not risen 3 std out by most of the
 9 times its rise at 1 std that a quadratic cost would (a heavily damped mode near Nyquist,
 whose cost is flat on one side), the mode's frequency is profiled locally and its std
-widened by how much farther out the cost reaches that level.
+widened by how much farther out the cost reaches that level. Its damping is checked the same
+way (:func:`_damping_span`): a lightly damped fit's cost is steep near the fit and flat
+beyond, so a damping ten times the fit's can be as plausible as it.
 
 Costs are those of :class:`~galvo_sysid.ident.refine.joint.JointProblem`: weighted by each
 window's noise, so in units of the averaged noise's variance.
@@ -35,6 +39,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from galvo_sysid.ident.refine.options import MAX_DAMPING, MIN_DAMPING
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -74,6 +80,13 @@ its linearised std does not stand and it is profiled locally."""
 _DAMPING = tuple(float(z) for z in np.geomspace(3e-4, 0.2, 8))
 _POINTS = 32
 
+ELSEWHERE_LEVEL = PROFILE_LEVEL + 2.0 * math.log(_POINTS)
+"""Cost rise (16.1) below which a frequency of the band's grid in another basin than the
+fit's leaves the mode unplaced: :data:`PROFILE_LEVEL` for the least rise over the grid's
+:data:`_POINTS` frequencies (a Bonferroni correction for looking everywhere in the band: the
+fit is the best of many noisy basins, and a basin that is the truth's rises above the best by
+more than one fixed point would)."""
+
 
 @dataclass(frozen=True)
 class ModeProfile:
@@ -95,6 +108,7 @@ class ModeProfile:
     zeta_span: tuple[float, float]
     k_span: tuple[float, float]
     local: bool = False
+    elsewhere: bool = False
 
     def resolved(self, band: tuple[float, float]) -> bool:
         """Whether the data place the mode: it brings enough evidence and its plausible
@@ -102,7 +116,8 @@ class ModeProfile:
         profile places it however wide: its std says how well."""  # noqa: D205, D209
         lo, hi = band
         covered = math.log(self.omega_span[1] / self.omega_span[0]) / math.log(hi / lo)
-        return self.evidence >= MODE_EVIDENCE and (self.local or covered < 0.5)
+        return (self.evidence >= MODE_EVIDENCE and not self.elsewhere
+                and (self.local or covered < 0.5))
 
 
 def evidence(joint: JointProblem, omega: NDArray[np.float64], zeta: NDArray[np.float64],
@@ -164,12 +179,41 @@ def profile_modes(joint: JointProblem, x: NDArray[np.float64],
         ok = delta < PROFILE_LEVEL
         best = int(np.argmin(delta))
         better = (float(w_c[best]), float(z_c[best])) if delta[best] < -1.0 else None
+        elsewhere = _elsewhere(grid, delta[1:].reshape(grid.size, -1).min(axis=1),
+                               float(omega[i]))
+        if elsewhere:  # its residue may be any of the basins'
+            ok_k = delta < ELSEWHERE_LEVEL
+            k_span = (float(k[ok_k].min()), float(k[ok_k].max()))
+        else:
+            k_span = (float(k[ok].min()), float(k[ok].max()))
         out.append(ModeProfile(
-            evidence=float(gain[0]), better=better,
+            evidence=float(gain[0]), better=better, elsewhere=elsewhere,
             omega_span=(float(w_c[ok].min()), float(w_c[ok].max())),
-            zeta_span=(float(z_c[ok].min()), float(z_c[ok].max())),
-            k_span=(float(k[ok].min()), float(k[ok].max()))))
+            zeta_span=(float(z_c[ok].min()), float(z_c[ok].max())), k_span=k_span))
     return out
+
+
+def _elsewhere(grid: NDArray[np.float64], rise: NDArray[np.float64], w: float) -> bool:
+    """Whether a frequency of the grid outside the fit's basin rises less than
+    :data:`ELSEWHERE_LEVEL` (``rise``: the least over the dampings, per frequency).
+
+    The fit's basin: the two grid frequencies either side of the fit, and the runs of
+    frequencies below the level that contain either.
+    """  # noqa: D205
+    below = rise < ELSEWHERE_LEVEL
+    b = min(int(np.searchsorted(grid, w)), grid.size - 1)
+    own = np.zeros(grid.size, dtype=bool)
+    for start in {max(b - 1, 0), b}:
+        own[start] = True
+        if not below[start]:
+            continue
+        lo = hi = start
+        while lo > 0 and below[lo - 1]:
+            lo -= 1
+        while hi < grid.size - 1 and below[hi + 1]:
+            hi += 1
+        own[lo: hi + 1] = True
+    return bool(np.any(below & ~own))
 
 
 def widen_to_profiles(cov: NDArray[np.float64], profiles: Sequence[ModeProfile],
@@ -189,6 +233,62 @@ def widen_to_profiles(cov: NDArray[np.float64], profiles: Sequence[ModeProfile],
                 cov[j, j] = floor * floor
 
 
+def _scan_blocks(joint: JointProblem, i: int, x: NDArray[np.float64],
+                 blocks: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]]) -> list[
+                     tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """Cost rise and residue of mode i at blocks of candidates ``(w, z)`` (each (rows, c)),
+    the others fixed: one scan for all blocks (the other modes' columns are made once)."""  # noqa: D205, D209
+    omega, zeta, lag = joint.unpack(x)
+    w_c = np.concatenate([[omega[i]], *(np.ravel(w) for w, _ in blocks)])
+    z_c = np.concatenate([[zeta[i]], *(np.ravel(z) for _, z in blocks)])
+    gain, k = joint.scan(i, omega, zeta, lag, w_c, z_c)
+    out = []
+    at = 1
+    for w, _ in blocks:
+        size = int(np.size(w))
+        out.append(((gain[0] - gain[at: at + size]).reshape(np.shape(w)),
+                    k[at: at + size].reshape(np.shape(w))))
+        at += size
+    return out
+
+
+def _omega_block(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArray[np.float64],
+                 ridge: tuple[float, float, float], band: tuple[float, float], *,
+                 spread: int = 4, damping: NDArray[np.float64] | None = None) -> tuple[
+                     NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`_omega_profile`'s candidates, (offsets, dampings) each."""
+    omega, zeta, _ = joint.unpack(x)
+    s_w, s_z, rho = ridge
+    lo, hi = band
+    w = np.clip(omega[i] * np.exp(s_w * u), lo * 1.0001, hi / 1.0001)
+    v = np.linspace(-float(spread), float(spread), 2 * spread + 1)
+    logz = (math.log(zeta[i]) + rho * s_z * u[:, None]
+            + s_z * math.sqrt(max(1.0 - rho * rho, 1e-6)) * v[None, :])
+    z = np.exp(np.clip(logz, math.log(1e-5), math.log(0.9)))
+    if damping is not None:
+        z = np.concatenate([z, np.broadcast_to(damping, (u.size, damping.size))], axis=1)
+    return np.repeat(w[:, None], z.shape[1], axis=1), z
+
+
+def _omega_rises(block: tuple[NDArray[np.float64], NDArray[np.float64]],
+                 scanned: tuple[NDArray[np.float64], NDArray[np.float64]], spread: int) -> tuple[
+                     NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                     NDArray[np.float64]]:
+    """:func:`_omega_profile`'s result from its block's scan."""
+    w, z = block
+    delta, k = scanned
+    rows = np.arange(w.shape[0])
+    best = np.argmin(delta, axis=1)
+    rise = delta[rows, best]
+    inner = (best > 0) & (best < 2 * spread)
+    for r in np.flatnonzero(inner):  # parabola through the best damping and its neighbours
+        a, b, c = delta[r, best[r] - 1: best[r] + 2]
+        curv = a - 2 * b + c
+        if curv > 0:
+            rise[r] = b - (a - c) ** 2 / (8 * curv)
+    return np.maximum(rise, 0.0), w[:, 0], z[rows, best], k[rows, best]
+
+
 def _omega_profile(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArray[np.float64],
                    ridge: tuple[float, float, float], band: tuple[float, float], *,
                    spread: int = 4, damping: NDArray[np.float64] | None = None) -> tuple[
@@ -202,30 +302,8 @@ def _omega_profile(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArr
     best ridge damping and its neighbours), the frequency, and the best damping and its
     residue.
     """
-    omega, zeta, lag = joint.unpack(x)
-    s_w, s_z, rho = ridge
-    lo, hi = band
-    w = np.clip(omega[i] * np.exp(s_w * u), lo * 1.0001, hi / 1.0001)
-    v = np.linspace(-float(spread), float(spread), 2 * spread + 1)
-    logz = (math.log(zeta[i]) + rho * s_z * u[:, None]
-            + s_z * math.sqrt(max(1.0 - rho * rho, 1e-6)) * v[None, :])
-    z = np.exp(np.clip(logz, math.log(1e-5), math.log(0.9)))
-    if damping is not None:
-        z = np.concatenate([z, np.broadcast_to(damping, (u.size, damping.size))], axis=1)
-    w_c = np.concatenate([[omega[i]], np.repeat(w, z.shape[1])])
-    z_c = np.concatenate([[zeta[i]], z.ravel()])
-    gain, k = joint.scan(i, omega, zeta, lag, w_c, z_c)
-    delta = (gain[0] - gain[1:]).reshape(u.size, -1)
-    rows = np.arange(u.size)
-    best = np.argmin(delta, axis=1)
-    rise = delta[rows, best]
-    inner = (best > 0) & (best < v.size - 1)
-    for r in np.flatnonzero(inner):  # parabola through the best damping and its neighbours
-        a, b, c = delta[r, best[r] - 1: best[r] + 2]
-        curv = a - 2 * b + c
-        if curv > 0:
-            rise[r] = b - (a - c) ** 2 / (8 * curv)
-    return np.maximum(rise, 0.0), w, z[rows, best], k[1:].reshape(u.size, -1)[rows, best]
+    block = _omega_block(joint, i, x, u, ridge, band, spread=spread, damping=damping)
+    return _omega_rises(block, _scan_blocks(joint, i, x, [block])[0], spread)
 
 
 def _near_fit(joint: JointProblem, i: int, x: NDArray[np.float64],
@@ -289,6 +367,107 @@ def _quadratic(rise: NDArray[np.float64]) -> bool:
                 and rise[3] >= QUADRATIC_SHORTFALL * (9.0 * c + 3.0 * b))
 
 
+_ZETA_SPREAD = np.array([-1.0, -0.5, 0.0, 0.5, 1.0])
+_CHECK = np.array([-3.0, -1.0, 1.0, 3.0])  # offsets of the linearised std's checks [std]
+
+
+def _zeta_block(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArray[np.float64],
+                ridge: tuple[float, float, float], band: tuple[float, float]) -> tuple[
+                    NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`_zeta_profile`'s candidates, (offsets, frequencies) each; an offset whose
+    damping leaves ``[MIN_DAMPING, MAX_DAMPING]`` is put at the fit's damping."""  # noqa: D205, D209
+    omega, zeta, _ = joint.unpack(x)
+    s_w, s_z, rho = ridge
+    lo, hi = band
+    z = zeta[i] * (1.0 + s_z * u)
+    z = np.where((z >= MIN_DAMPING) & (z <= MAX_DAMPING), z, zeta[i])
+    centre = omega[i] * np.exp(rho * s_w * u)
+    w = np.clip(centre[:, None] * (1.0 + z[:, None] * _ZETA_SPREAD[None, :]), lo * 1.0001,
+                hi / 1.0001)
+    return w, np.repeat(z[:, None], _ZETA_SPREAD.size, axis=1)
+
+
+def _zeta_rises(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArray[np.float64],
+                ridge: tuple[float, float, float],
+                block: tuple[NDArray[np.float64], NDArray[np.float64]],
+                scanned: tuple[NDArray[np.float64], NDArray[np.float64]]) -> tuple[
+                    NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                    NDArray[np.float64]]:
+    """:func:`_zeta_profile`'s result from its block's scan."""
+    _, zeta, _ = joint.unpack(x)
+    z_off = zeta[i] * (1.0 + ridge[1] * u)
+    valid = (z_off >= MIN_DAMPING) & (z_off <= MAX_DAMPING)
+    w, z = block
+    delta, k = scanned
+    rows = np.arange(u.size)
+    best = np.argmin(delta, axis=1)
+    rise = np.where(valid, np.maximum(delta[rows, best], 0.0), np.nan)
+    return rise, w[rows, best], z[:, 0], k[rows, best]
+
+
+def _zeta_profile(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArray[np.float64],
+                  ridge: tuple[float, float, float], band: tuple[float, float]) -> tuple[
+                      NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                      NDArray[np.float64]]:
+    """Cost rise of mode i at damping offsets u (in linearised std of zeta), its frequency
+    minimised: along the linearised ridge (the frequency's regression on the damping) and
+    at fractions of the candidate's half-power width either side (a damper mode's peak is
+    wider, and its best frequency moves more than the fit's linearisation says).
+
+    Offsets whose damping leaves ``[MIN_DAMPING, MAX_DAMPING]`` are not evaluated (their
+    rise is nan). Returns, per offset: the rise, and the best frequency, damping and residue.
+    """  # noqa: D205
+    block = _zeta_block(joint, i, x, u, ridge, band)
+    return _zeta_rises(joint, i, x, u, ridge, block, _scan_blocks(joint, i, x, [block])[0])
+
+
+def _damping_span(joint: JointProblem, i: int, x: NDArray[np.float64],
+                  ridge: tuple[float, float, float], band: tuple[float, float],
+                  p: ModeProfile, rise: NDArray[np.float64] | None = None) -> ModeProfile:
+    """A strong mode's profile in its damping, where its linearised std may not stand.
+
+    The damping's cost is checked at 1 and 3 linearised std either side (the frequency
+    minimised out; a side below :data:`MIN_DAMPING` is left out). A lightly damped mode's
+    peak is narrow: the cost is steep near the fit and then flat, so a damping ten times the
+    fit's can be as plausible (a noise peak fitted sharper than the mode). Where the cost
+    at 3 std has not risen by :data:`QUADRATIC_SHORTFALL` of the 9 times its rise at 1 std
+    that a quadratic cost would (or where it does not rise at 1 std), the damping is profiled
+    outwards (doubling the offset up to the damping's bounds) and ``p``'s spans are widened
+    to the points whose rise is below that level (at least :data:`PROFILE_LEVEL`). ``rise``:
+    the check's rises at -3, -1, +1 and +3 std, if already scanned.
+    """
+    _, zeta, _ = joint.unpack(x)
+    if rise is None:
+        rise = _zeta_profile(joint, i, x, _CHECK, ridge, band)[0]
+    ones = [float(r) for r in rise[1:3] if math.isfinite(r)]
+    c = max(ones) if ones else 0.0
+    outer = [(float(r3), float(r1)) for r3, r1 in ((rise[0], rise[1]), (rise[3], rise[2]))
+             if math.isfinite(r3) and math.isfinite(r1)]
+    if c > 0 and all(r3 >= QUADRATIC_SHORTFALL * 9.0 * r1 for r3, r1 in outer):
+        return p
+    level = max(9.0 * c, PROFILE_LEVEL)
+    side = 3.0 * math.sqrt(2.0) ** np.arange(24)
+    u = np.concatenate([-side[::-1], [0.0], side])
+    rise, w, z, k = _zeta_profile(joint, i, x, u, ridge, band)
+    rise[side.size] = 0.0
+    ok = np.isfinite(rise) & (rise < level)
+    # the span's ends where the rise crosses the level between two offsets (linearly)
+    first, last = int(np.argmax(ok)), int(ok.size - 1 - np.argmax(ok[::-1]))
+    z_ends = [float(z[first]), float(z[last])]
+    for end, out in ((first, first - 1), (last, last + 1)):
+        if 0 <= out < ok.size and math.isfinite(rise[out]):
+            a = (rise[out] - level) / (rise[out] - rise[end])
+            z_ends.append(float(z[out] + a * (z[end] - z[out])))
+    return ModeProfile(
+        evidence=p.evidence, better=p.better, local=p.local, elsewhere=p.elsewhere,
+        omega_span=(min(float(w[ok].min()), p.omega_span[0]),
+                    max(float(w[ok].max()), p.omega_span[1])),
+        zeta_span=(min(*z_ends, p.zeta_span[0], float(zeta[i])),
+                   max(*z_ends, p.zeta_span[1], float(zeta[i]))),
+        k_span=(min(float(k[ok].min()), p.k_span[0]), max(float(k[ok].max()), p.k_span[1]))
+        if p.k_span[1] > p.k_span[0] else (float(k[ok].min()), float(k[ok].max())))
+
+
 def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[np.float64],
                      profiles: Sequence[ModeProfile],
                      band_list: Sequence[tuple[float, float]], *,
@@ -328,9 +507,14 @@ def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[n
         if not p.local and p.evidence < STRONG_EVIDENCE:  # scanned over its band
             out[i] = _near_fit(joint, i, x, ridge, band_list[i], p)
             continue
-        rise = _omega_profile(joint, i, x, np.array([-3.0, -1.0, 1.0, 3.0]), ridge,
-                              band_list[i], spread=2)[0]
+        # the frequency's and the damping's checks: one scan
+        b_w = _omega_block(joint, i, x, _CHECK, ridge, band_list[i], spread=2)
+        b_z = _zeta_block(joint, i, x, _CHECK, ridge, band_list[i])
+        s_w_scan, s_z_scan = _scan_blocks(joint, i, x, [b_w, b_z])
+        rise = _omega_rises(b_w, s_w_scan, 2)[0]
+        rise_z = _zeta_rises(joint, i, x, _CHECK, ridge, b_z, s_z_scan)[0]
         if _quadratic(rise):
+            out[i] = _damping_span(joint, i, x, ridge, band_list[i], p, rise_z)
             continue
         # The level of 3 std by the cost's own curvature at the fit: the linearised
         # (sandwich) std stands for a quadratic cost, and is scaled by how much farther
@@ -344,10 +528,10 @@ def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[n
             if not (ok[0] or ok[-1]) or reach * s_w > 1.0:
                 break
             reach *= 2.0
-        out[i] = ModeProfile(
+        out[i] = _damping_span(joint, i, x, ridge, band_list[i], ModeProfile(
             evidence=p.evidence, better=None,
             omega_span=(float(min(w[ok].min(), omega[i])), float(max(w[ok].max(), omega[i]))),
             zeta_span=(float(min(z[ok].min(), zeta[i])), float(max(z[ok].max(), zeta[i]))),
             k_span=(float(k[ok].min()), float(k[ok].max())),
-            local=True)
+            local=True), rise_z)
     return out
