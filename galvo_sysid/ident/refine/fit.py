@@ -27,9 +27,8 @@ resolves a mode no single window does. Both run the same steps (the tuning is
 4. **Checks.** A resolved mode ending at its band edge, or a residual between the band edges
    far above the noise (``options.adequacy_limit``), raises
    :class:`~galvo_sysid.errors.ModelMismatchError`: the data hold dynamics the model does not
-   place in its bands. A mode whose residue is below ``options.resolve_z`` of its std, that the
-   profile does not place, or whose damping ends at its lower bound (a noise spike fitted as
-   an undamped resonance), is reported unresolved with an uninformative std for its
+   place in its bands. A mode whose residue is below ``options.resolve_z`` of its std, or that the
+   profile does not place, is reported unresolved with an uninformative std for its
    frequency and damping. A residue that only just passed that test is likely to have been
    pushed over it by the noise: its std adds that expected bias
    (:func:`~galvo_sysid.ident.refine.checks.widen_selected`), so the std of a marginally
@@ -87,9 +86,6 @@ CHI2_STEP = 0.01
 the estimates then lie within about a tenth of their std of the optimum (a cost rise of 1 is
 one std), and a weakly excited mode's slow creep along its flat valley is not chased to
 1e-8 of the cost."""
-_FLOOR_DAMPING = 1.01 * MIN_DAMPING
-"""A mode whose damping ratio ends at its lower bound is not placed: a noise spike fitted as
-an undamped resonance (see :func:`_result`)."""
 _DEFAULT_DYNAMICS = InputDynamics()
 _DEFAULT_OPTIONS = RefineOptions()
 _JOINT_OPTIONS = RefineOptions(adequacy_limit=0.0)
@@ -356,8 +352,7 @@ def _result(joint: JointProblem, x: NDArray[np.float64],
     # resolved by these data: its frequency and damping are a noise fit.
     k_std = np.sqrt(np.clip(np.diag(cov)[1: 1 + n], 0.0, None))
     unresolved = tuple(i for i in range(n) if abs(shared[1 + i]) < resolve_z * k_std[i]
-                       or (profiles and not profiles[i].resolved(band_list[i]))
-                       or zeta[i] <= _FLOOR_DAMPING)
+                       or (profiles and not profiles[i].resolved(band_list[i])))
     # A residue that just passed the test is likely to have been pushed over it by the
     # noise: its std counts that bias.
     widen_selected(cov, [float(k) for k in shared[1:]], [i not in unresolved for i in range(n)],
