@@ -424,7 +424,9 @@ def _damping_span(joint: JointProblem, i: int, x: NDArray[np.float64],
     """A strong mode's profile in its damping, where its linearised std may not stand.
 
     The damping's cost is checked at 1 and 3 linearised std either side (the frequency
-    minimised out; a side below :data:`MIN_DAMPING` is left out). A lightly damped mode's
+    minimised out) as the frequency's is (:func:`_quadratic`; a side below
+    :data:`MIN_DAMPING` is left out, the other side's rise at 3 std compared with 9 times its
+    rise at 1 std). A lightly damped mode's
     peak is narrow: the cost is steep near the fit and then flat, so a damping ten times the
     fit's can be as plausible (a noise peak fitted sharper than the mode). Where the cost
     at 3 std has not risen by :data:`QUADRATIC_SHORTFALL` of the 9 times its rise at 1 std
@@ -438,9 +440,13 @@ def _damping_span(joint: JointProblem, i: int, x: NDArray[np.float64],
         rise = _zeta_profile(joint, i, x, _CHECK, ridge, band)[0]
     ones = [float(r) for r in rise[1:3] if math.isfinite(r)]
     c = max(ones) if ones else 0.0
-    outer = [(float(r3), float(r1)) for r3, r1 in ((rise[0], rise[1]), (rise[3], rise[2]))
-             if math.isfinite(r3) and math.isfinite(r1)]
-    if c > 0 and all(r3 >= QUADRATIC_SHORTFALL * 9.0 * r1 for r3, r1 in outer):
+    if np.all(np.isfinite(rise)):
+        quadratic = c > 0 and _quadratic(rise)  # both sides: a minimum beside the fit allowed
+    else:  # one side below the damping's bound: that side's ratio alone
+        outer = [(float(r3), float(r1)) for r3, r1 in ((rise[0], rise[1]), (rise[3], rise[2]))
+                 if math.isfinite(r3) and math.isfinite(r1)]
+        quadratic = c > 0 and all(r3 >= QUADRATIC_SHORTFALL * 9.0 * r1 for r3, r1 in outer)
+    if quadratic:
         return p
     level = max(9.0 * c, PROFILE_LEVEL)
     side = 3.0 * math.sqrt(2.0) ** np.arange(24)
