@@ -423,17 +423,16 @@ def _damping_span(joint: JointProblem, i: int, x: NDArray[np.float64],
                   p: ModeProfile, rise: NDArray[np.float64] | None = None) -> ModeProfile:
     """A strong mode's profile in its damping, where its linearised std may not stand.
 
-    The damping's cost is checked at 1 and 3 linearised std either side (the frequency
-    minimised out) as the frequency's is (:func:`_quadratic`; a side below
-    :data:`MIN_DAMPING` is left out, the other side's rise at 3 std compared with 9 times its
-    rise at 1 std). A lightly damped mode's
-    peak is narrow: the cost is steep near the fit and then flat, so a damping ten times the
-    fit's can be as plausible (a noise peak fitted sharper than the mode). Where the cost
-    at 3 std has not risen by :data:`QUADRATIC_SHORTFALL` of the 9 times its rise at 1 std
-    that a quadratic cost would (or where it does not rise at 1 std), the damping is profiled
-    outwards (doubling the offset up to the damping's bounds) and ``p``'s spans are widened
-    to the points whose rise is below that level (at least :data:`PROFILE_LEVEL`). ``rise``:
-    the check's rises at -3, -1, +1 and +3 std, if already scanned.
+    A lightly damped mode's peak is narrow: the cost is steep near the fit and then flat, so
+    a damping ten times the fit's can be as plausible (a noise peak fitted sharper than the
+    mode). The damping's cost is checked at 1 and 3 linearised std either side, the
+    frequency minimised out, as the frequency's is (:func:`_quadratic`); where one side lies
+    beyond the damping's bounds, the other side's rise at 3 std must reach
+    :data:`QUADRATIC_SHORTFALL` of 9 times its rise at 1 std. Where the check fails (or the
+    cost does not rise at 1 std), the damping is profiled outwards in steps of sqrt(2) up to
+    its bounds, and ``p``'s spans are widened to where the rise crosses 9 times the rise at
+    1 std (at least :data:`PROFILE_LEVEL`). ``rise``: the check's rises at -3, -1, +1 and +3
+    std, if already scanned.
     """
     _, zeta, _ = joint.unpack(x)
     if rise is None:
