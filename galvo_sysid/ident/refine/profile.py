@@ -368,6 +368,21 @@ _ZETA_SPREAD = np.array([-1.0, -0.5, 0.0, 0.5, 1.0])
 _CHECK = np.array([-3.0, -1.0, 1.0, 3.0])  # offsets of the linearised std's checks [std]
 
 
+def _zeta_offsets(zeta: float, s_z: float, u: NDArray[np.float64]) -> tuple[
+        NDArray[np.float64], NDArray[np.bool_]]:
+    """The dampings ``u`` linearised std (relative ``s_z``) from ``zeta``, and which of them lie
+    in ``[MIN_DAMPING, MAX_DAMPING]``."""  # noqa: D205, D209
+    z = zeta * (1.0 + s_z * u)
+    return z, (z >= MIN_DAMPING) & (z <= MAX_DAMPING)
+
+
+def _k_span(p: ModeProfile, k: NDArray[np.float64]) -> tuple[float, float]:
+    """The residues ``k`` spanned, with ``p``'s own span if its band was scanned (a strong
+    mode's is empty)."""  # noqa: D205, D209
+    lo, hi = float(k.min()), float(k.max())
+    return (min(lo, p.k_span[0]), max(hi, p.k_span[1])) if p.k_span[1] > p.k_span[0] else (lo, hi)
+
+
 def _zeta_block(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArray[np.float64],
                 ridge: tuple[float, float, float], band: tuple[float, float]) -> tuple[
                     NDArray[np.float64], NDArray[np.float64]]:
@@ -376,8 +391,8 @@ def _zeta_block(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArray[
     omega, zeta, _ = joint.unpack(x)
     s_w, s_z, rho = ridge
     lo, hi = band
-    z = zeta[i] * (1.0 + s_z * u)
-    z = np.where((z >= MIN_DAMPING) & (z <= MAX_DAMPING), z, zeta[i])
+    z, valid = _zeta_offsets(float(zeta[i]), s_z, u)
+    z = np.where(valid, z, zeta[i])
     centre = omega[i] * np.exp(rho * s_w * u)
     w = np.clip(centre[:, None] * (1.0 + z[:, None] * _ZETA_SPREAD[None, :]), lo * 1.0001,
                 hi / 1.0001)
@@ -392,8 +407,7 @@ def _zeta_rises(joint: JointProblem, i: int, x: NDArray[np.float64], u: NDArray[
                     NDArray[np.float64]]:
     """:func:`_zeta_profile`'s result from its block's scan."""
     _, zeta, _ = joint.unpack(x)
-    z_off = zeta[i] * (1.0 + ridge[1] * u)
-    valid = (z_off >= MIN_DAMPING) & (z_off <= MAX_DAMPING)
+    valid = _zeta_offsets(float(zeta[i]), ridge[1], u)[1]
     w, z = block
     delta, k = scanned
     rows = np.arange(u.size)
@@ -466,8 +480,7 @@ def _damping_span(joint: JointProblem, i: int, x: NDArray[np.float64],
                     max(float(w[ok].max()), p.omega_span[1])),
         zeta_span=(min(*z_ends, p.zeta_span[0], float(zeta[i])),
                    max(*z_ends, p.zeta_span[1], float(zeta[i]))),
-        k_span=(min(float(k[ok].min()), p.k_span[0]), max(float(k[ok].max()), p.k_span[1]))
-        if p.k_span[1] > p.k_span[0] else (float(k[ok].min()), float(k[ok].max())))
+        k_span=_k_span(p, k[ok]))
 
 
 def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[np.float64],
@@ -531,14 +544,11 @@ def check_linearised(joint: JointProblem, x: NDArray[np.float64], cov: NDArray[n
                 break
             reach *= 2.0
         # (a strong mode whose band was scanned keeps that profile's span too)
-        banded = p.k_span[1] > p.k_span[0]
         out[i] = _damping_span(joint, i, x, ridge, band_list[i], ModeProfile(
             evidence=p.evidence, better=None,
             omega_span=(float(min(w[ok].min(), omega[i], p.omega_span[0])),
                         float(max(w[ok].max(), omega[i], p.omega_span[1]))),
             zeta_span=(float(min(z[ok].min(), zeta[i], p.zeta_span[0])),
                        float(max(z[ok].max(), zeta[i], p.zeta_span[1]))),
-            k_span=(min(float(k[ok].min()), p.k_span[0]), max(float(k[ok].max()), p.k_span[1]))
-            if banded else (float(k[ok].min()), float(k[ok].max())),
-            local=True), rise_z)
+            k_span=_k_span(p, k[ok]), local=True), rise_z)
     return out
