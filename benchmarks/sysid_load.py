@@ -13,6 +13,10 @@ forward and back) and replayed with fresh move_ids and advancing stamps. Reporte
   windows whose fit failed;
 - latency per window, from the publication of its last move to the arrival of its result
   here (median, p99, max), results matched to windows by their stamps;
+- where the CPU went from the first move to the last result: the node's own process (its
+  executor and message handling), its fit processes (and the CPU per window), and this
+  process (the publisher thread and the result listener), each as a share of one CPU; the
+  machine has ``os.cpu_count()`` of them;
 - the node's resident memory (main process plus fit processes) after start-up and at the end,
   and along the run.
 
@@ -70,6 +74,27 @@ def process_tree_rss(pid: int) -> tuple[int, int]:
         except OSError:
             pass
     return total, len(kids)
+
+
+def process_tree_cpu(pid: int) -> tuple[float, float]:
+    """CPU seconds (user + system) used so far by ``pid``, and by its live children together."""
+    tick = os.sysconf('SC_CLK_TCK')
+
+    def cpu(p: int) -> tuple[float, int]:  # (seconds, parent pid)
+        fields = Path(f'/proc/{p}/stat').read_text().rsplit(')', 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / tick, int(fields[1])
+
+    own = children = 0.0
+    for stat in Path('/proc').glob('[0-9]*/stat'):
+        try:
+            seconds, parent = cpu(int(stat.parent.name))
+        except (OSError, IndexError, ValueError):
+            continue
+        if int(stat.parent.name) == pid:
+            own = seconds
+        elif parent == pid:
+            children += seconds
+    return own, children
 
 
 _COUNTERS = re.compile(r'counters: (.*)$', re.MULTILINE)
@@ -180,6 +205,7 @@ def _measure(args: argparse.Namespace, node: Any, executor: SingleThreadedExecut
         state['leftover'] = sum(c % args.window_size for c in counts.values())
 
     thread = threading.Thread(target=publish, name='publisher')
+    cpu_start = (*process_tree_cpu(proc.pid), time.process_time())
     start = time.monotonic()
     thread.start()
     next_rss = start + args.duration / 4
@@ -192,6 +218,8 @@ def _measure(args: argparse.Namespace, node: Any, executor: SingleThreadedExecut
     settle = time.monotonic() + args.settle
     while time.monotonic() < settle and not set(completes) <= set(arrivals):
         executor.spin_once(timeout_sec=0.05)
+    cpu_end = (*process_tree_cpu(proc.pid), time.process_time())
+    cpu_wall = time.monotonic() - start
     rss_end, _ = process_tree_rss(proc.pid)
     rss_trace.append((time.monotonic() - start, rss_end))
     end = time.monotonic() + 3  # one more counters line after the last input
@@ -215,8 +243,21 @@ def _measure(args: argparse.Namespace, node: Any, executor: SingleThreadedExecut
         'median': 1e3 * statistics.median(latencies) if latencies else math.nan,
         'p99': 1e3 * pct(latencies, 0.99), 'max': 1e3 * max(latencies, default=math.nan),
         'rss_start': rss_start / 1024, 'rss_end': rss_end / 1024, 'rss_trace': rss_trace,
-        'children': children,
+        'children': children, 'cpu_wall': cpu_wall,
+        'cpu': [b - a for a, b in zip(cpu_start, cpu_end, strict=True)],
     }
+
+
+def _cpu_row(r: dict[str, Any]) -> str:
+    """Where the CPU went while the moves came: the node, its fit processes, the publisher."""
+    node, fits, here = r['cpu']
+    wall = r['cpu_wall']
+    per_window = f', {1e3 * fits / r["windows_received"]:.0f} ms per window' \
+        if r['windows_received'] else ''
+    return (f'{wall:.1f} s on {os.cpu_count()} CPUs: node {node:.1f} ({node / wall:.2f} CPU), '
+            f'fit processes {fits:.1f} ({fits / wall:.2f} CPU{per_window}), this process '
+            f'(publisher, result listener) {here:.1f} ({here / wall:.2f} CPU); in all '
+            f'{(node + fits + here) / wall:.2f} CPU')
 
 
 def main() -> int:
@@ -257,6 +298,7 @@ def main() -> int:
          f'{r["windows_expected"]} / {r["windows_received"]} ({r["windows_full"]})'),
         ('latency per window median / p99 / max [ms]',
          f'{r["median"]:.0f} / {r["p99"]:.0f} / {r["max"]:.0f}'),
+        ('CPU from the first move to the last result [s]', _cpu_row(r)),
         ('resident memory start -> end [MiB]',
          f'{r["rss_start"]:.0f} -> {r["rss_end"]:.0f} (node + {r["children"]} child '
          'processes: fits, resource tracker)'),
