@@ -66,10 +66,35 @@ def test_parameter_stats_arithmetic() -> None:
     k1 = eff.parameter_stats('k1', wins)      # mode 1 unresolved in one window
     assert (k1.resolved, k1.counted, k1.failures()) == (3, False, [])
     assert k1.calibration == pytest.approx(math.sqrt((1 + 1 + 9) / 3))
+    # every figure over the windows that resolve the mode: the +3 of the unresolved window
+    # (a noise fit) is in none of them
+    assert k1.efficiency == pytest.approx(math.sqrt((1 + 1 + 9) / 3) / 2)
+    assert k1.bias == pytest.approx((1 - 1 - 3) / 3 / 2)
+    assert (k1.median_error, k1.worst) == (1.0, 1.5)
     assert not k1.partial  # 3 windows resolve it: too few to summarise
     assert not s.partial  # resolved in every window: counted
     many = eff.parameter_stats('k1', wins * 4)
     assert (many.resolved, many.windows, many.partial) == (12, 16, True)
+    none = eff.parameter_stats('k1', [w for w in wins if not w.resolved[0]])
+    assert none.resolved == 0
+    assert math.isnan(none.efficiency)
+    assert math.isnan(none.calibration)
+
+
+def test_the_partial_modes_line_names_those_outside_the_must_show() -> None:
+    def stats(name: str, efficiency: float, calibration: float) -> eff.Stats:
+        return eff.Stats(name=name, resolved=14, windows=400, median_error=0.1, limit=0.1,
+                         efficiency=efficiency, bias=0.0, worst=2.0, calibration=calibration,
+                         reported=1.0)
+
+    line = eff.partial_summary([('a', stats('k3', 2.2, 1.0)), ('b', stats('omega_3', 1.1, 0.7)),
+                                ('b', stats('zeta_3', 1.0, 1.0))])
+    assert 'efficiency 1-2.2, calibration 0.7-1' in line
+    assert 'a k3 (14/400) eff 2.2;' in line
+    assert 'b omega_3 (14/400) calib 0.7' in line
+    assert 'zeta_3' not in line
+    fine = eff.partial_summary([('b', stats('zeta_3', 1.0, 1.0))])
+    assert fine.endswith('all within the must-show')
 
 
 def test_an_efficient_estimator_passes() -> None:
