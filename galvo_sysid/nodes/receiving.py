@@ -99,6 +99,7 @@ class BatchReceiver:
                 if msg is not None:
                     handle(msg)
                     done += 1
+                    del msg  # before the next is taken: one message in memory at a time
             if done == before:
                 break
         self.taken += done
