@@ -55,8 +55,8 @@ MOVE_TIME = 606e-5  # simulated seconds per move (512 recorded + 94 dwell sample
 NS = '/load'
 
 
-def process_tree_rss(pid: int) -> tuple[int, int]:
-    """Resident memory [KiB] of ``pid`` and of its children together; and the children."""
+def children(pid: int) -> list[int]:
+    """Pids whose parent is ``pid``."""
     kids = []
     for stat in Path('/proc').glob('[0-9]*/stat'):
         try:
@@ -65,6 +65,12 @@ def process_tree_rss(pid: int) -> tuple[int, int]:
             continue
         if int(fields[1]) == pid:
             kids.append(int(stat.parent.name))
+    return kids
+
+
+def process_tree_rss(pid: int) -> tuple[int, int]:
+    """Resident memory [KiB] of ``pid`` and of its children together; and the children."""
+    kids = children(pid)
     total = 0
     for p in [pid, *kids]:
         try:
@@ -80,21 +86,14 @@ def process_tree_cpu(pid: int) -> tuple[float, float]:
     """CPU seconds (user + system) used so far by ``pid``, and by its live children together."""
     tick = os.sysconf('SC_CLK_TCK')
 
-    def cpu(p: int) -> tuple[float, int]:  # (seconds, parent pid)
-        fields = Path(f'/proc/{p}/stat').read_text().rsplit(')', 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / tick, int(fields[1])
-
-    own = children = 0.0
-    for stat in Path('/proc').glob('[0-9]*/stat'):
+    def cpu(p: int) -> float:
         try:
-            seconds, parent = cpu(int(stat.parent.name))
-        except (OSError, IndexError, ValueError):
-            continue
-        if int(stat.parent.name) == pid:
-            own = seconds
-        elif parent == pid:
-            children += seconds
-    return own, children
+            fields = Path(f'/proc/{p}/stat').read_text().rsplit(')', 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / tick
+        except (OSError, IndexError, ValueError):  # gone meanwhile
+            return 0.0
+
+    return cpu(pid), sum(cpu(p) for p in children(pid))
 
 
 _COUNTERS = re.compile(r'counters: (.*)$', re.MULTILINE)
