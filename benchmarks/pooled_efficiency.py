@@ -55,7 +55,7 @@ from efficiency import Window, _cell, _load, false_fail_rate, parameter_stats, s
 
 from galvo_sysid import keep_freed_memory
 from galvo_sysid.errors import GalvoSysidError
-from galvo_sysid.field.pooling import joint_records
+from galvo_sysid.field.pooling import JOINT_START, joint_records
 from galvo_sysid.ident.identify import identify_joint, identify_window
 from galvo_sysid.ident.pool import pool_results
 from galvo_sysid.ident.refine.bound import crlb_at, crlb_known_noise
@@ -115,7 +115,7 @@ def pooled_window(seed: int, angles: list[float], per_angle: int = 1) -> Window:
     else:
         joint_input = records
     res = identify_joint(joint_input, sample_period=TAU, initial=start,
-                         keep_initial_damping=True, noise_models=noise_models)
+                         noise_models=noise_models, **JOINT_START)
     seconds = time.perf_counter() - t0
     rows = max(enc.shape[1] for _, enc in records)
     exact = crlb_known_noise(records, sample_period=TAU, model=truth.modal,

@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from galvo_sysid.model import PlantModel
     from galvo_sysid.monitor.moves import Window
 
-__all__ = ['JOINT_WINDOWS', 'POOLINGS', 'joint_records']
+__all__ = ['JOINT_START', 'JOINT_WINDOWS', 'POOLINGS', 'joint_records']
 
 POOLINGS = ('joint', 'inverse-variance')
 """Pooled estimates: one joint fit to the windows (refined method only), or the
@@ -35,6 +35,12 @@ inverse-variance combination of the windows' results."""
 
 JOINT_WINDOWS = 64
 """Windows held for the joint fit at most (about 0.8 MB each for 100 moves of 512 samples)."""
+
+JOINT_START = {'keep_initial_damping': True, 'scan_points': 0}
+"""How the joint fit starts: from the windows' pooled results as they are, without scanning
+the bands again (each window's fit scanned them; the joint fit's profiles still search every
+mode of moderate evidence over its band), and so without its first, unweighted stage. On the
+paper bag of 19 angles the same estimates to the last digit as with the scan, 0.08 s less."""
 
 
 def _keep(kept: list[Window], window: Window, *, limit: int,
@@ -101,8 +107,8 @@ def _pooled(windows: list[WindowResult], kept: list[Window], *, pooling: str,
     try:
         joint = identify_joint(joint_records(kept), sample_period=periods.pop(),
                                initial=combined, target_angle=combined.target_angle,
-                               keep_initial_damping=True, model=model, screen_limit=0.0,
-                               noise_models=_noise_models(kept, by_index))
+                               model=model, screen_limit=0.0,
+                               noise_models=_noise_models(kept, by_index), **JOINT_START)
     except GalvoSysidError as err:
         return (combined, 'inverse-variance',
                 _notes(f'joint fit failed: {one_line(err)}', left_out), len(results))
