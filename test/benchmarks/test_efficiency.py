@@ -71,6 +71,9 @@ def test_parameter_stats_arithmetic() -> None:
     assert k1.efficiency == pytest.approx(math.sqrt((1 + 1 + 9) / 3) / 2)
     assert k1.bias == pytest.approx((1 - 1 - 3) / 3 / 2)
     assert (k1.median_error, k1.worst) == (1.0, 1.5)
+    # and over every window, the noise fit of the unresolved one included
+    assert k1.efficiency_all == pytest.approx(math.sqrt((1 + 1 + 9 + 9) / 4) / 2)
+    assert s.efficiency_all == pytest.approx(s.efficiency)  # resolved everywhere: the same
     assert not k1.partial  # 3 windows resolve it: too few to summarise
     assert not s.partial  # resolved in every window: counted
     many = eff.parameter_stats('k1', wins * 4)
