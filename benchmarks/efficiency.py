@@ -84,6 +84,7 @@ from galvo_sysid.errors import GalvoSysidError
 from galvo_sysid.ident.identify import identify_window
 from galvo_sysid.ident.refine.bound import crlb_at, crlb_known_noise
 from galvo_sysid.ident.result import IdentificationResult
+from galvo_sysid.ident.warm import WarmStart
 from galvo_sysid.model import (
     PAPER_MODEL,
     PSI,
@@ -202,15 +203,18 @@ class Window:
     seconds: float
     excitation: float
     estimated: dict[str, float] = field(default_factory=dict)
+    warm: bool = False
 
 
-def run_window(cond: Condition, seed: int) -> Window:
-    """Simulate, identify and bound one window."""
+def run_window(cond: Condition, seed: int, *,
+               warm_start: WarmStart | None = None) -> tuple[Window, IdentificationResult]:
+    """Simulate, identify and bound one window (started from ``warm_start`` if given)."""
     truth = cond.truth
     t = truth.sample_period
     cur, enc = simulate_window(cond.angle, moves=100, seed=seed, config=cond.config)
     t0 = time.perf_counter()
-    res = identify_window(cur, enc, sample_period=t, model=truth, target_angle=cond.angle)
+    res = identify_window(cur, enc, sample_period=t, model=truth, target_angle=cond.angle,
+                          warm_start=warm_start)
     seconds = time.perf_counter() - t0
     exact = crlb_known_noise([(cur, enc)], sample_period=t, model=truth.modal,
                              dynamics=truth.dynamics,
@@ -218,17 +222,27 @@ def run_window(cond: Condition, seed: int) -> Window:
                                                                           enc.shape[1]))
     estimated = crlb_at([(cur, enc)], sample_period=t, model=truth.modal,
                         dynamics=truth.dynamics)
-    return scored(res, exact, truth.modal, seconds=seconds,
-                  excitation=excitation(cur) if truth is PAPER_MODEL else math.nan,
-                  estimated=estimated)
+    window = scored(res, exact, truth.modal, seconds=seconds,
+                    excitation=excitation(cur) if truth is PAPER_MODEL else math.nan,
+                    estimated=estimated)
+    return replace(window, warm=res.warm_started), res
 
 
-def _attempt(cond: Condition, seed: int) -> Window | str:
-    """run_window, or the one-line error it raised."""
-    try:
-        return run_window(cond, seed)
-    except GalvoSysidError as exc:
-        return f'{type(exc).__name__}: {exc}'
+def _attempt(cond: Condition, seeds: tuple[int, ...], warm: bool) -> list[Window | str]:
+    """run_window of each seed, or the one-line error it raised; with ``warm``, each window
+    started from the previous one's result (as the sysid node does, the first afresh)."""  # noqa: D205, D209
+    out: list[Window | str] = []
+    start: WarmStart | None = None
+    for seed in seeds:
+        try:
+            window, res = run_window(cond, seed, warm_start=start)
+        except GalvoSysidError as exc:
+            out.append(f'{type(exc).__name__}: {exc}')
+            start = None
+            continue
+        out.append(window)
+        start = WarmStart.from_result(res) if warm else None
+    return out
 
 
 def scored(result: IdentificationResult, bound: dict[str, float], truth: ModalModel, *,
@@ -369,11 +383,19 @@ def main(argv: list[str] | None = None) -> int:
                         help='processes (each window is timed in its own; 1 on a busy machine)')
     parser.add_argument('--scanners', type=int, nargs='*', default=list(SCANNERS),
                         help='seeds of the generated scanners')
+    parser.add_argument('--warm', type=int, default=0, metavar='N',
+                        help="start each window from the previous seed's result, as the sysid "
+                             "node does, in chains of N seeds (each chain's first afresh); "
+                             '0: every window afresh')
     args = parser.parse_args(argv)
+    if args.warm < 0:
+        parser.error('--warm must be 0 or more')
     start = time.perf_counter()
     family = conditions(tuple(args.scanners))
+    how = (f", each started from the previous seed's result in chains of {args.warm} (the "
+           f"sysid node's warm start)" if args.warm else '')
     print(f'efficiency against the Cramer-Rao bound: {len(family)} conditions, one window of '
-          f'100 moves each, refined fit, noise seeds 0..{args.seeds - 1}')
+          f'100 moves each, refined fit, noise seeds 0..{args.seeds - 1}{how}')
     print(f'started {datetime.datetime.now().isoformat(timespec="seconds")}, load average '
           f'{_load()}')
     print()
@@ -384,12 +406,17 @@ def main(argv: list[str] | None = None) -> int:
     partial: list[tuple[str, Stats]] = []
     reference = math.nan
     chance = false_fail_rate(args.seeds)
-    tasks = [(cond, seed) for cond in family for seed in range(args.seeds)]
+    block = args.warm or 4
+    chains = [(cond, tuple(range(first, min(first + block, args.seeds))), args.warm > 0)
+              for cond in family for first in range(0, args.seeds, block)]
     if args.jobs > 1:
         with multiprocessing.get_context('fork').Pool(args.jobs) as pool:
-            outcomes = pool.starmap(_attempt, tasks, chunksize=4)
+            results = pool.starmap(_attempt, chains, chunksize=1)
     else:
-        outcomes = [_attempt(cond, seed) for cond, seed in tasks]
+        results = [_attempt(*chain) for chain in chains]
+    tasks = [(cond, seed) for cond, seeds, _ in chains for seed in seeds]
+    outcomes = [out for chain in results for out in chain]
+    kept_warm = sum(isinstance(out, Window) and out.warm for out in outcomes)
     for cond in family:
         wins: list[Window] = []
         failed = 0
@@ -452,6 +479,10 @@ def main(argv: list[str] | None = None) -> int:
         print(partial_summary(partial))
     print(f'median time per window (identify_window, wall) {1e3 * statistics.median(times):.0f}'
           f' ms over {len(times)} windows')
+    if args.warm:
+        print(f'warm-started fits kept: {kept_warm} of {len(outcomes)} windows (the others '
+              f'fitted afresh: the first of each chain of {args.warm}, and any whose warm fit '
+              f'was not plausible)')
     print(f'finished in {time.perf_counter() - start:.0f} s, '
           f'{datetime.datetime.now().isoformat(timespec="seconds")}, load average {_load()}')
     return 0

@@ -49,6 +49,7 @@ from galvo_sysid.ident.refine import DEFAULT_RESOLVE_Z as RESOLVE_Z
 from galvo_sysid.ident.refine import RefineOptions, model_fit_percent, refine_fit, refine_joint
 from galvo_sysid.ident.result import IdentificationResult, result_from_vectors
 from galvo_sysid.ident.screen import DEFAULT_SCREEN_LIMIT, screen_moves
+from galvo_sysid.ident.warm import WarmStart, plausible
 from galvo_sysid.model import PAPER_MODEL, ModalModel, PlantModel
 from galvo_sysid.model.dynamics import InputDynamics, check_sample_period
 
@@ -57,6 +58,7 @@ if TYPE_CHECKING:
 
     from numpy.typing import ArrayLike, NDArray
 
+    from galvo_sysid.ident.refine import RefinedFit
     from galvo_sysid.ident.refine.whitener import NoiseModel
 
 __all__ = ['METHODS', 'check_model_period', 'identify_joint', 'identify_window']
@@ -112,6 +114,7 @@ def _jackknife_std(cur: NDArray[np.float64], enc: NDArray[np.float64], *, sample
 def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
                     method: str = 'refined', target_angle: float | None = None,
                     model: PlantModel | None = None, n_modes: int | None = None,
+                    warm_start: WarmStart | None = None,
                     **options: Any) -> IdentificationResult:
     """Identify the modal model from one window of moves.
 
@@ -130,6 +133,10 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
         model: The scanner's model (:class:`~galvo_sysid.model.plant.PlantModel`).
         n_modes: Resonant modes to identify (default: the model's; another number needs
             ``bands``).
+        warm_start: The refined fit starts from the previous window of the same moves
+            (:mod:`galvo_sysid.ident.warm`: its estimate and noise model), and searches
+            afresh only if that fit's cost is above what the noise allows; ignored by the
+            paper methods.
         **options: Passed on. Common: ``bands`` (per-mode frequency bands [rad/s], default
             the model's), ``reference`` (modal model of the start and the paper pipeline's
             mode selection, default the model's), ``min_angle_span`` [deg],
@@ -202,25 +209,50 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
                              target_angle=angle, moves=moves, input_delay=delay,
                              lag_time_constant=0.0, fit_percent=fit, method=method,
                              resolved=resolved, set_aside=set_aside)
-    # Refined: start from the paper pipeline (method A); its failure is not fatal because the
-    # refined fit scans every band for its own start.
-    try:
-        initial = paper_pipeline(cur, enc, sample_period=t, method='A', **paper_opts).model
-    except GalvoSysidError:
-        initial = reference
-    if initial.n_modes != n:
-        raise ConfigurationError(f'the starting model has {initial.n_modes} modes, not {n}')
     dynamics, tuning = _refine_setup(plant, opts, base=RefineOptions())
-    refined = refine_fit(cur, enc, sample_period=t, initial=initial, bands=bands,
-                         dynamics=dynamics, estimate_lag=bool(opts.get('estimate_lag', True)),
-                         extra_starts=opts.get('extra_starts', ()), options=tuning)
+    estimate_lag = bool(opts.get('estimate_lag', True))
+    refined = None
+    if warm_start is not None and warm_start.model.n_modes == n:
+        refined = _warm_fit(cur, enc, t, warm_start, bands=bands, dynamics=dynamics,
+                            estimate_lag=estimate_lag, tuning=tuning)
+    warm = refined is not None
+    if refined is None:
+        # Start from the paper pipeline (method A); its failure is not fatal because the
+        # refined fit scans every band for its own start.
+        try:
+            initial = paper_pipeline(cur, enc, sample_period=t, method='A', **paper_opts).model
+        except GalvoSysidError:
+            initial = reference
+        if initial.n_modes != n:
+            raise ConfigurationError(f'the starting model has {initial.n_modes} modes, not {n}')
+        refined = refine_fit(cur, enc, sample_period=t, initial=initial, bands=bands,
+                             dynamics=dynamics, estimate_lag=estimate_lag,
+                             extra_starts=opts.get('extra_starts', ()), options=tuning)
     return result_from_vectors(refined.model.parameters(), refined.std_by_name(), n_modes=n,
                          target_angle=angle, moves=moves, input_delay=refined.input_delay,
                          lag_time_constant=refined.lag_time_constant,
                          fit_percent=refined.fit_percent, method='refined',
                          resolved=refined.resolved, set_aside=set_aside,
                          crlb_std=_modal_only(refined.crlb_by_name()),
-                         noise_model=refined.noise_models[0] if refined.noise_models else None)
+                         noise_model=refined.noise_models[0] if refined.noise_models else None,
+                         warm_started=warm)
+
+
+def _warm_fit(cur: NDArray[np.float64], enc: NDArray[np.float64], t: float, warm: WarmStart, *,
+              bands: Sequence[tuple[float, float]], dynamics: InputDynamics,
+              estimate_lag: bool, tuning: RefineOptions) -> RefinedFit | None:
+    """The refined fit started from ``warm`` (:mod:`galvo_sysid.ident.warm`), or None where it
+    fails or its cost is above what the noise allows (the caller then fits afresh)."""  # noqa: D205, D209
+    if estimate_lag:
+        dynamics = replace(dynamics, lag_time_constant=warm.lag_time_constant)
+    try:
+        fit = refine_fit(cur, enc, sample_period=t, initial=warm.model, bands=bands,
+                         dynamics=dynamics, estimate_lag=estimate_lag,
+                         options=replace(tuning, keep_initial_damping=True, scan_points=0),
+                         noise_model=warm.noise_model)
+    except GalvoSysidError:
+        return None
+    return fit if plausible(fit.chi2, fit.rows) else None
 
 
 def _screen(current: ArrayLike, encoder: ArrayLike, *, model: PlantModel,

@@ -51,6 +51,9 @@ class IdentificationResult:
             (None otherwise): a joint fit of the same moves reuses it
             (:func:`~galvo_sysid.ident.identify.identify_joint`'s ``noise_models``). Not
             part of the result's data: left out of :meth:`to_dict` and of comparisons.
+        warm_started: Whether the refined fit is the one started from the previous window's
+            result (:class:`~galvo_sysid.ident.warm.WarmStart`) rather than from its own
+            search. Not part of the result's data either.
     """
 
     target_angle: float
@@ -71,6 +74,7 @@ class IdentificationResult:
     set_aside: tuple[tuple[int, str], ...] = ()
     crlb_std: dict[str, float] = field(default_factory=dict)
     noise_model: NoiseModel | None = field(default=None, compare=False, repr=False)
+    warm_started: bool = field(default=False, compare=False, repr=False)
 
     @property
     def model(self) -> ModalModel:

@@ -16,6 +16,8 @@ import numpy as np
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray
 
+    from galvo_sysid.ident.warm import WarmStart
+
 __all__ = ['SIGNALS', 'MoveHalf', 'Window', 'too_long']
 
 SIGNALS = ('current', 'encoder')
@@ -66,6 +68,8 @@ class Window:
         last_stamp: Stamp of the latest move [s].
         partial: True when handed out by
             :meth:`~galvo_sysid.monitor.pairing.MoveWindower.flush` before it was full.
+        warm_start: What its refined fit starts from (the previous window of its angle, set
+            by the sysid node: :class:`~galvo_sysid.ident.warm.WarmStart`), None: afresh.
     """
 
     index: int
@@ -77,6 +81,7 @@ class Window:
     first_stamp: float
     last_stamp: float
     partial: bool = False
+    warm_start: WarmStart | None = None
 
     @property
     def moves(self) -> int:

@@ -301,6 +301,8 @@ SYSID_PARAMETERS = (
     ParamSpec('method', 'refined', 'identification method', choices=METHODS),
     ParamSpec('na', 15, 'ARX order of A[q] (paper pipeline, also the refined start)', 2, 60),
     ParamSpec('nb', 15, 'ARX order of B[q] (paper pipeline, also the refined start)', 2, 60),
+    ParamSpec('warm_start', True, "start each window's refined fit from the previous window "
+              'of its angle (refitted afresh where that fit is not plausible)'),
     ParamSpec('queue_size', 16, 'windows waiting for a fit at most (oldest dropped beyond)',
               1, 10_000, read_only=True),
     ParamSpec('fit_processes', 2, 'child processes for the fits (0: fit on a thread)', 0, 16,

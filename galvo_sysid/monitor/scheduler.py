@@ -47,7 +47,7 @@ def fit_window(window: Window, *, method: str = 'refined', model: PlantModel | N
     """Identify one window with :func:`~galvo_sysid.ident.identify.identify_window` (picklable).
 
     Args:
-        window: The window.
+        window: The window (its refined fit started from its ``warm_start`` if set).
         method: Identification method.
         model: The scanner's plant model (modes, bands, input dynamics, sample period;
             None: the paper's).
@@ -61,7 +61,7 @@ def fit_window(window: Window, *, method: str = 'refined', model: PlantModel | N
 
     return identify_window(window.current, window.encoder, sample_period=window.sample_period,
                            method=method, target_angle=window.target_angle, model=model,
-                           **dict(options or {}))
+                           warm_start=window.warm_start, **dict(options or {}))
 
 
 def node_fit(*, method: str, model: PlantModel | None, na: int,

@@ -18,12 +18,14 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.ident.warm import WarmStart
 from galvo_sysid.model.files import model_label
 from galvo_sysid.monitor.moves import too_long
 from galvo_sysid.monitor.pairing import MoveWindower
@@ -44,6 +46,10 @@ __all__ = ['LATENCY_WINDOWS', 'SerializedHalf', 'SysidTask', 'WatchdogTask', 'mi
 
 LATENCY_WINDOWS = 200
 """Windows the sysid task's latency figures (:meth:`SysidTask.latency_ms`) are taken over."""
+
+MAX_STARTS = 256
+"""Angles whose latest result the sysid task keeps to start their next window from (the least
+recently identified forgotten beyond)."""
 
 
 class SerializedHalf(Protocol):
@@ -86,6 +92,8 @@ class SysidTask:
         queue_size: Windows waiting for a fit at most.
         processes: Child processes for the fits (0: fit on a worker thread).
         warnings_per_second: Most warning lines a second.
+        warm_start: Start each window's refined fit from the latest result of its angle and
+            record length (:mod:`galvo_sysid.ident.warm`).
         model_path: The plant-model file the fits use ('' or None: the packaged paper
             model), for the messages.
     """
@@ -94,7 +102,7 @@ class SysidTask:
                  on_result: Callable[[FitOutcome], None], *, warn: Callable[[str], None],
                  windower: Mapping[str, Any] | None = None, queue_size: int = 8,
                  processes: int = 0, warnings_per_second: int = 20,
-                 model_path: str | None = None) -> None:
+                 warm_start: bool = True, model_path: str | None = None) -> None:
         self.windower = MoveWindower(**dict(windower or {}))
         self._warn = RateLimitedLog(warn, per_second=warnings_per_second)
         self._on_result = on_result
@@ -110,6 +118,10 @@ class SysidTask:
         """Why the latest window that did not match the model did not (None: none so far)."""
         self.latest_mismatched = False
         """Whether the latest finished window did not match the model."""
+        self.warm_start = bool(warm_start)
+        self.windows_warm = 0
+        """Windows identified by a fit started from the previous window of their angle."""
+        self._starts: OrderedDict[tuple[int, int], WarmStart] = OrderedDict()
 
     def add(self, half: MoveHalf) -> list[Window]:
         """Take one half; queue the windows it completed (returned) and report rejections."""
@@ -120,14 +132,32 @@ class SysidTask:
         if self.windower.resets != resets:
             self._warn('stamps jumped back and stayed back (a bag replay looping?): buffers '
                        'reset', key='time jump')
+            self.clear_starts()
         self._report()
         for w in windows:
             self.windows_completed += 1
-            for old in self.fitter.submit(w):
+            for old in self.fitter.submit(self._started(w)):
                 self._warn(f'window {old.index} ({old.target_angle:g} deg, {old.moves} moves) '
                            'dropped: identification queue full (fits slower than input)',
                            key='queue full')
         return windows
+
+    def clear_starts(self) -> None:
+        """Forget the results the next windows would start from (the next fit of each angle
+        searches afresh): after a reset, or new window or fit settings."""  # noqa: D205, D209
+        with self._lock:
+            self._starts.clear()
+
+    def _start_key(self, w: Window) -> tuple[int, int]:
+        return (round(w.target_angle / self.windower.angle_resolution), w.current.shape[-1])
+
+    def _started(self, w: Window) -> Window:
+        """``w`` with the start its fit takes (the latest result of its angle), if any."""
+        if not self.warm_start:
+            return w
+        with self._lock:
+            start = self._starts.get(self._start_key(w))
+        return w if start is None else replace(w, warm_start=start)
 
     def set_aside(self, text: str) -> None:
         """Report a message that could not even be converted (counted as one rejection)."""
@@ -178,9 +208,19 @@ class SysidTask:
 
     def _done(self, outcome: FitOutcome) -> None:
         w = outcome.window
+        key = self._start_key(w)
         with self._lock:
             self._latencies.append(outcome.queued + outcome.fit_time)
+            start = None if outcome.result is None else WarmStart.from_result(outcome.result)
+            if start is not None:
+                self._starts[key] = start
+                self._starts.move_to_end(key)
+                while len(self._starts) > MAX_STARTS:
+                    self._starts.popitem(last=False)
+            else:  # a failed or mismatched window: the next of its angle searches afresh
+                self._starts.pop(key, None)
             if outcome.result is not None:
+                self.windows_warm += outcome.result.warm_started
                 self.latest_mismatched = False
             elif outcome.mismatch:
                 self.latest_mismatched = True
@@ -197,7 +237,8 @@ class SysidTask:
     def stats(self) -> dict[str, int]:
         """Counters: halves received, moves accepted/rejected (and of those, halves of
         another sample period than the model's, halves refused before decoding, halves set
-        aside for their stamp, waiting halves evicted), windows identified / failed / not
+        aside for their stamp, waiting halves evicted), windows identified (and of those,
+        by a fit started from the previous window of their angle) / failed / not
         matching the model / dropped, open windows evicted / expired, resets, queue, bytes of
         samples buffered."""  # noqa: D205, D209
         w = self.windower
@@ -209,7 +250,8 @@ class SysidTask:
                 'halves_evicted': w.halves_evicted, 'pending_halves': w.pending,
                 'held_halves': w.held, 'open_windows': w.open_windows,
                 'windows_completed': self.windows_completed,
-                'windows_identified': f.fitted, 'windows_failed': f.failed,
+                'windows_identified': f.fitted, 'windows_warm_started': self.windows_warm,
+                'windows_failed': f.failed,
                 'windows_mismatched': f.mismatched, 'windows_dropped': f.dropped,
                 'windows_waiting': f.waiting, 'windows_evicted': w.windows_evicted,
                 'windows_expired': w.windows_expired, 'resets': w.resets,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ from monitor_fakes import Collector, fake_result, halves_of, window
 
 from galvo_sysid.errors import ModelMismatchError
 from galvo_sysid.ident import IdentificationResult
+from galvo_sysid.ident.warm import WarmStart
 from galvo_sysid.monitor.drift import DriftMonitor
 from galvo_sysid.monitor.moves import MoveHalf, Window
 from galvo_sysid.monitor.scheduler import FitOutcome
@@ -398,3 +400,75 @@ def test_sysid_task_reports_the_latency_of_its_windows() -> None:
     assert task.latency_ms() == {'latency_ms_median': 5, 'latency_ms_p99': 5,
                                  'latency_ms_max': 5}
 
+
+
+def _warm_task(*, warm_start: bool = True) -> tuple[SysidTask, Collector, list[Window]]:
+    """A task whose fit records each window as it came and returns a result of its own per
+    window (its frequencies scaled by the window's index)."""
+    seen: list[Window] = []
+    done = Collector()
+
+    def fit(w: Window) -> IdentificationResult:
+        seen.append(w)
+        if w.index == 2:  # the third window (the first +0.3 deg one of round 2)
+            raise ModelMismatchError('no physical mode 2 in its band')
+        return replace(fake_result(w.target_angle, w.moves, omega_scale=1 + 0.01 * w.index),
+                       warm_started=w.warm_start is not None)
+
+    task = SysidTask(fit, done, warn=lambda _: None, windower={'window_size': 10},
+                     warm_start=warm_start)
+    return task, done, seen
+
+
+def _rounds(task: SysidTask, done: Collector, rounds: int, *, clear: bool = False) -> None:
+    """Windows of +-0.3 deg, one of each sign per round, each round's fits done before the
+    next round's moves come (so the next windows can start from them); with ``clear``, the
+    task forgets its starts before each round."""
+    items = halves_of(GalvoSimulator(seed=4), [0.3], 20 * rounds)
+    for r in range(rounds):
+        if clear:
+            task.clear_starts()  # what the node does when window or fit settings change
+        done.event.clear()
+        done.expected = 2 * (r + 1)
+        for h in items[40 * r: 40 * (r + 1)]:
+            task.add(h)
+        assert done.event.wait(10)
+
+
+def test_each_window_starts_from_the_latest_result_of_its_angle() -> None:
+    """The sysid node's warm start: a window's fit starts from the latest result of its own
+    signed angle; a window that failed or did not match leaves the next one of its angle to
+    search afresh; the fits that kept their start are counted."""
+    task, done, seen = _warm_task()
+    _rounds(task, done, 3)
+    stats = task.stats()
+    task.close()
+    by_index = {w.index: w for w in seen}
+    assert sorted(by_index) == [0, 1, 2, 3, 4, 5]
+    assert by_index[0].warm_start is None
+    assert by_index[1].warm_start is None
+    results = {o.window.index: o.result for o in done.items}
+    for later, earlier in ((3, 1),):  # -0.3 deg: round 2 starts from round 1
+        assert by_index[later].target_angle == by_index[earlier].target_angle
+        assert by_index[later].warm_start == WarmStart.from_result(results[earlier])
+    plus = [i for i in by_index if by_index[i].target_angle > 0]
+    assert plus == [0, 2, 4]
+    assert by_index[2].warm_start == WarmStart.from_result(results[0])
+    assert by_index[4].warm_start is None  # window 2 did not match: afresh
+    minus5 = by_index[5].warm_start
+    assert minus5 == WarmStart.from_result(results[3])
+    assert stats['windows_warm_started'] == 2  # windows 3 and 5 (2 did not match)
+    assert stats['windows_identified'] == 5
+
+
+def test_warm_start_off_or_forgotten_means_every_fit_searches_afresh() -> None:
+    task, done, seen = _warm_task(warm_start=False)
+    _rounds(task, done, 2)
+    task.close()
+    assert all(w.warm_start is None for w in seen)
+    assert task.stats()['windows_warm_started'] == 0
+
+    task, done, seen = _warm_task()
+    _rounds(task, done, 2, clear=True)
+    task.close()
+    assert [w.warm_start for w in seen] == [None] * 4

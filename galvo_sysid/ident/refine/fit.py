@@ -95,7 +95,8 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
                initial: ModalModel, dynamics: InputDynamics = _DEFAULT_DYNAMICS,
                estimate_lag: bool = True, bands: Sequence[tuple[float, float]] | None = None,
                extra_starts: Sequence[ModalModel] = (),
-               options: RefineOptions = _DEFAULT_OPTIONS) -> RefinedFit:
+               options: RefineOptions = _DEFAULT_OPTIONS,
+               noise_model: NoiseModel | None = None) -> RefinedFit:
     """Fit the modal model with exact input dynamics to a window of moves (averaged).
 
     Args:
@@ -114,6 +115,10 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
             ``initial``.
         extra_starts: Further starting models (e.g. the previous window's result).
         options: Tuning (:class:`~galvo_sysid.ident.refine.options.RefineOptions`).
+        noise_model: The noise model of another window of the same kind of moves (the
+            previous window of the angle): used, its level rescaled to these moves, unless
+            these moves' noise differs from it by more than
+            :data:`~galvo_sysid.ident.refine.joint.REUSE_LEVEL` (then one is estimated).
 
     Returns:
         The fit with its covariance.
@@ -127,7 +132,9 @@ def refine_fit(current: ArrayLike, encoder: ArrayLike, *, sample_period: float,
     """
     return _fit([(current, encoder)], sample_period=sample_period, initial=initial,
                 dynamics=dynamics, estimate_lag=estimate_lag, bands=bands,
-                extra_starts=extra_starts, options=options, noise_filters=None, min_moves=1)
+                extra_starts=extra_starts, options=options, noise_filters=None, min_moves=1,
+                noise_models=(noise_model,) if noise_model is not None else (),
+                check_noise=True)
 
 
 def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float,
@@ -182,7 +189,8 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
          initial: ModalModel, dynamics: InputDynamics, estimate_lag: bool,
          bands: Sequence[tuple[float, float]] | None, extra_starts: Sequence[ModalModel],
          options: RefineOptions, noise_filters: Sequence[Whitener | None] | None,
-         min_moves: int, noise_models: Sequence[NoiseModel | None] = ()) -> RefinedFit:
+         min_moves: int, noise_models: Sequence[NoiseModel | None] = (),
+         check_noise: bool = False) -> RefinedFit:
     """The refined fit of one or several windows (see the module docs)."""
     t = check_sample_period(sample_period)
     opt = options
@@ -244,7 +252,7 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
             best = (key, x1)
     x = best[1] if best is not None else starts[0]
     if two_stage:
-        joint.prewhiten(x, whiten_order, noise_models)
+        joint.prewhiten(x, whiten_order, noise_models, check=check_noise)
         final_tol = max(1e-8, CHI2_STEP / max(joint.cost(x), 1.0))
         x = polish(x)
     profiles: list[ModeProfile] = []

@@ -17,6 +17,7 @@ it falls back to the white-noise formula ``sigma^2 A^-1``.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -41,7 +42,13 @@ if TYPE_CHECKING:
 
     Floats: TypeAlias = Sequence[float] | NDArray[np.float64]
 
-__all__ = ['JointProblem', 'covariance']
+__all__ = ['REUSE_LEVEL', 'JointProblem', 'covariance']
+
+REUSE_LEVEL = 1.1
+"""A noise model of other moves (:meth:`JointProblem.prewhiten` with ``check``) is reused
+while the ratio of these moves' noise to its own lies within a factor of this of 1 (the std
+then within 5 % of a fresh model's, whose own error over 100 moves is about 1 %); beyond, a
+model is estimated anew."""
 
 
 class JointProblem:
@@ -66,13 +73,17 @@ class JointProblem:
         self.set_weights(weights)
 
     def prewhiten(self, x: NDArray[np.float64], order: int,
-                  models: Sequence[NoiseModel | None] = ()) -> None:
+                  models: Sequence[NoiseModel | None] = (), *, check: bool = False) -> None:
         """Whiten each window by its noise model at x, and weigh it by its noise.
 
         ``models``: per window, a noise model already estimated from the same moves (e.g. by
         the window's own fit, at its own estimate: :attr:`RefinedFit.noise_models`), used as
         it is instead of estimating one at x; None (or a model of other moves or rows, or of
-        other lags than this fit's): estimated here.
+        other lags than this fit's): estimated here. With ``check``, the models are of other
+        moves of the same kind (the previous window of the same angle): each is checked
+        against this window's deviations (:meth:`NoiseModel.level_ratio`) and used with its
+        level rescaled to them if that ratio is within :data:`REUSE_LEVEL` of 1, else
+        estimated anew.
 
         The noise model is the stationary noise of the moves' deviations from the window's
         mean at x, each move's own nuisance (the ringing, lag state and offset it starts
@@ -104,14 +115,24 @@ class JointProblem:
         used: list[NoiseModel | None] = []
         for prob, coef, model in zip(self.problems, self.coefficients(x), given, strict=True):
             lags = max(order, prob.k.size // BOUND_ORDER_DIVISOR)
+            dev = nuis = None
             if model is not None and (model.moves, model.rows, len(model.autocovariance)) \
                     == (prob.moves, prob.k.size, lags + 1):
-                prob.set_whitening(model.whitener())
-                weights.append(model.weight())
-                used.append(model)
-                continue
-            dev = prob.deviations(omega, zeta, lag, coef)
-            nuis = prob.columns(omega, zeta, lag, whitened=False)[:, 1 + n:]
+                whitener = model.whitener()
+                if check:
+                    dev = prob.deviations(omega, zeta, lag, coef)
+                    nuis = prob.columns(omega, zeta, lag, whitened=False)[:, 1 + n:]
+                    ratio = model.level_ratio(whitener, dev, nuis)
+                    model = (replace(model, variance=model.variance * ratio)
+                             if 1.0 / REUSE_LEVEL <= ratio <= REUSE_LEVEL else None)
+                if model is not None:
+                    prob.set_whitening(whitener)
+                    weights.append(model.weight())
+                    used.append(model)
+                    continue
+            if dev is None or nuis is None:
+                dev = prob.deviations(omega, zeta, lag, coef)
+                nuis = prob.columns(omega, zeta, lag, whitened=False)[:, 1 + n:]
             found = stationary_noise_model(dev, nuis, lags, second_order=order)
             if found is not None:
                 chain, var = found

@@ -273,6 +273,31 @@ class NoiseModel:
         factor = float(self.autocovariance[0])
         return 1.0 / max(math.sqrt(self.variance * factor / (self.moves - 1)), 1e-300)
 
+    def level_ratio(self, whitener: Whitener, dev: NDArray[np.float64],
+                    nuisance: NDArray[np.float64]) -> float:
+        """How these deviations' noise compares with this model's (1: the same).
+
+        The whitened variance per row of ``dev`` (M, rows), each move's nuisance (the
+        columns ``nuisance``, (rows, p)) taken out by generalised least squares, over
+        :attr:`variance`. For moves of this model's noise it is 1 to about 1 % (two windows
+        of 100 moves); noise of another level scales it, noise of another spectrum raises
+        it (a whitener of the wrong spectrum leaves more prediction error). Used to reuse a
+        model of the previous window of the same moves (:meth:`JointProblem.prewhiten`).
+
+        Args:
+            whitener: :meth:`whitener` (made once by the caller).
+            dev: The moves' deviations from their mean (unwhitened rows).
+            nuisance: Each move's nuisance columns (unwhitened rows).
+        """
+        w_dev = whitener.apply(np.ascontiguousarray(dev), axis=1)
+        w_nuis = whitener.apply(nuisance, axis=0)
+        scale = np.linalg.norm(w_nuis, axis=0)
+        scale[scale == 0] = 1.0
+        q, _ = np.linalg.qr(w_nuis / scale)
+        rest = w_dev - (w_dev @ q) @ q.T
+        dof = int(dev.shape[0]) * max(int(dev.shape[1]) - int(q.shape[1]), 1)
+        return float(np.sum(rest * rest)) / (dof * max(float(self.variance), 1e-300))
+
 
 def _levinson(autocovariance: NDArray[np.float64]) -> Whitener:
     """:meth:`Whitener.from_autocovariance`, faster for the bound's repeated noise models (the

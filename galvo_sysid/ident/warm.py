@@ -1,0 +1,72 @@
+"""A window's refined fit started from the previous window of the same moves (warm start).
+
+The sysid node identifies window after window of the same signed angles. The previous
+window's result already holds what a fit searches for afresh: the basin of every mode (the
+paper pipeline's ARX start and the frequency scans) and the stationary noise model (the
+expectation-maximisation over the moves' scatter). :class:`WarmStart` carries them to the next
+window's fit (:func:`~galvo_sysid.ident.identify.identify_window`'s ``warm_start``), which then
+
+- starts the prewhitened polish from the previous estimate as it is (no ARX start, no scan,
+  no first unwhitened stage);
+- reuses the previous noise model with its level rescaled to this window's moves, unless this
+  window's noise differs from it by more than a factor
+  :data:`~galvo_sysid.ident.refine.joint.REUSE_LEVEL` (then it is estimated as usual);
+- still profiles the weakly excited modes over their bands and checks the fit as usual.
+
+The fit is kept only if its cost is what the noise allows (:func:`plausible`): a plant that
+moved to another basin since the previous window (a step change) leaves a misfit far above
+the noise, and the window is fitted afresh. Both ways the estimate is the same optimum, to a
+fraction of a std (``benchmarks/warm_start.py`` measures it, with the time saved).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from galvo_sysid.model.modal import ModalModel
+
+if TYPE_CHECKING:
+    from galvo_sysid.ident.refine.whitener import NoiseModel
+    from galvo_sysid.ident.result import IdentificationResult
+
+__all__ = ['WARM_CHI2_Z', 'WarmStart', 'plausible']
+
+WARM_CHI2_Z = 5.0
+"""A warm-started fit is kept when its cost (in noise units) exceeds its rows by at most this
+many standard deviations of a chi-square of that many rows (``sqrt(2 rows)``)."""
+
+
+@dataclass(frozen=True)
+class WarmStart:
+    """What the next window of the same moves starts from.
+
+    Attributes:
+        model: The previous window's modal model (its frequencies and damping ratios start
+            the fit; the residues are solved anew).
+        lag_time_constant: Its amplifier lag [s] (the start, when the lag is estimated).
+        noise_model: Its stationary noise model (None: estimated anew).
+    """
+
+    model: ModalModel
+    lag_time_constant: float
+    noise_model: NoiseModel | None = None
+
+    @classmethod
+    def from_result(cls, result: IdentificationResult) -> WarmStart | None:
+        """The warm start a refined window result gives (None for the paper methods' or a
+        result without finite frequencies)."""  # noqa: D205, D209
+        if result.method != 'refined':
+            return None
+        values = (*result.natural_frequencies, *result.damping_ratios,
+                  result.lag_time_constant)
+        if not all(math.isfinite(v) for v in values):
+            return None
+        return cls(model=result.model, lag_time_constant=float(result.lag_time_constant),
+                   noise_model=result.noise_model)
+
+
+def plausible(chi2: float, rows: int) -> bool:
+    """Whether a fit's cost of ``rows`` rows in noise units is what the noise allows."""
+    return math.isfinite(chi2) and chi2 <= rows + WARM_CHI2_Z * math.sqrt(2.0 * max(rows, 1))

@@ -1,0 +1,159 @@
+"""The warm start: a window's refined fit started from the previous window of the same moves."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from openloop_data import open_loop_window
+from test_identify import CALIBRATION_RMS, CALIBRATION_RMS_EACH, CALIBRATION_WINDOWS
+
+import galvo_sysid.ident.identify as identify_module
+from galvo_sysid.ident.identify import identify_window
+from galvo_sysid.ident.refine import refine_fit
+from galvo_sysid.ident.refine.joint import REUSE_LEVEL
+from galvo_sysid.ident.warm import WARM_CHI2_Z, WarmStart, plausible
+from galvo_sysid.model import PAPER_MODEL, PSI, REFERENCE_MODEL, TAU
+from galvo_sysid.sim.config import SimulatorConfig
+from galvo_sysid.sim.simulator import simulate_window
+
+STRONG = ('k0', 'k1', 'k2', 'omega_1', 'omega_2', 'zeta_1', 'zeta_2')
+"""The paper scanner's parameters every window of 100 moves at 1 psi resolves."""
+
+
+def _z(a: dict[str, float], b: dict[str, float], std: dict[str, float]) -> dict[str, float]:
+    return {k: (a[k] - b[k]) / std[k] for k in STRONG}
+
+
+def test_the_next_window_starts_where_the_last_ended_and_lands_at_the_same_optimum(
+        windows_1psi: list, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Started from window 0's result, window 1's fit skips the ARX start and the scans and
+    ends within 0.3 std of its own fresh fit, with the same std to 5 %."""
+    first = identify_window(*windows_1psi[0], sample_period=TAU, target_angle=PSI)
+    fresh = identify_window(*windows_1psi[1], sample_period=TAU, target_angle=PSI)
+    start = WarmStart.from_result(first)
+    assert start is not None
+    assert start.noise_model is first.noise_model
+
+    def no_search(*args: object, **kwargs: object) -> None:
+        raise AssertionError('the warm start searched afresh')
+
+    monkeypatch.setattr(identify_module, 'paper_pipeline', no_search)
+    warm = identify_window(*windows_1psi[1], sample_period=TAU, target_angle=PSI,
+                           warm_start=start)
+    assert warm.warm_started
+    assert not fresh.warm_started
+    std = fresh.std_by_name()
+    z = _z(warm.model.parameters(), fresh.model.parameters(), std)
+    assert max(abs(v) for v in z.values()) < 0.3, z
+    ratio = {k: warm.std_by_name()[k] / std[k] for k in STRONG}
+    assert all(0.95 < r < 1.05 for r in ratio.values()), ratio
+    assert warm.resolved[:2] == (True, True)
+    assert warm == replace(warm)  # a plain result: the flag is no part of its data
+    assert 'warm_started' not in warm.to_dict()
+
+
+def test_a_warm_fit_the_noise_does_not_explain_is_fitted_afresh(
+        windows_1psi: list, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where the warm fit's cost is not plausible, the result is exactly the fresh fit's."""
+    start = WarmStart.from_result(
+        identify_window(*windows_1psi[0], sample_period=TAU, target_angle=PSI))
+    fresh = identify_window(*windows_1psi[2], sample_period=TAU, target_angle=PSI)
+    monkeypatch.setattr(identify_module, 'plausible', lambda chi2, rows: False)
+    again = identify_window(*windows_1psi[2], sample_period=TAU, target_angle=PSI,
+                            warm_start=start)
+    assert not again.warm_started
+    assert again == fresh
+
+
+def test_a_plant_that_moved_is_found_from_the_old_start() -> None:
+    """The scanner's first mode 3 % lower than the window the start came from (a step far
+    beyond the drift between two windows): the result is still within 0.5 std of the fresh fit
+    of the new window, warm or not."""
+    start = WarmStart.from_result(identify_window(*simulate_window(PSI, moves=100, seed=40),
+                                                  sample_period=TAU, target_angle=PSI))
+    assert start is not None
+    modal = PAPER_MODEL.modal
+    omega = list(modal.natural_frequencies)
+    omega[0] *= 0.97
+    moved = replace(PAPER_MODEL, modal=replace(modal, natural_frequencies=tuple(omega)))
+    cur, enc = simulate_window(PSI, moves=100, seed=41,
+                               config=SimulatorConfig(plant=moved, design=PAPER_MODEL))
+    fresh = identify_window(cur, enc, sample_period=TAU, target_angle=PSI)
+    warm = identify_window(cur, enc, sample_period=TAU, target_angle=PSI, warm_start=start)
+    z = _z(warm.model.parameters(), fresh.model.parameters(), fresh.std_by_name())
+    assert max(abs(v) for v in z.values()) < 0.5, z
+    assert abs(fresh.natural_frequencies[0] / omega[0] - 1) < 1e-3
+
+
+def test_the_noise_model_is_reused_rescaled_or_estimated_anew(windows_1psi: list) -> None:
+    """The previous window's noise model is used with its level rescaled to these moves; a
+    window with twice the encoder noise gets a model of its own."""
+    initial = PAPER_MODEL.modal
+    first = refine_fit(*windows_1psi[0], sample_period=TAU, initial=initial)
+    model = first.noise_models[0]
+    assert model is not None
+    same = refine_fit(*windows_1psi[1], sample_period=TAU, initial=initial, noise_model=model)
+    reused = same.noise_models[0]
+    assert reused is not None
+    assert reused.autocovariance == model.autocovariance
+    assert reused.variance != model.variance
+    assert 1 / REUSE_LEVEL < reused.variance / model.variance < REUSE_LEVEL
+    own = refine_fit(*windows_1psi[1], sample_period=TAU, initial=initial).noise_models[0]
+    assert own is not None
+    assert abs(reused.variance * reused.autocovariance[0]
+               / (own.variance * own.autocovariance[0]) - 1) < 0.05
+
+    noisy = SimulatorConfig(measurement_noise_std=2 * SimulatorConfig().measurement_noise_std)
+    cur, enc = simulate_window(PSI, moves=100, seed=1, config=noisy)
+    louder = refine_fit(cur, enc, sample_period=TAU, initial=initial, noise_model=model)
+    fresh = louder.noise_models[0]
+    assert fresh is not None
+    assert fresh.autocovariance != model.autocovariance
+
+
+def test_warm_started_windows_in_a_row_stay_calibrated() -> None:
+    """rms(error / reported std) over CALIBRATION_WINDOWS windows of 100 open-loop moves,
+    each started from the previous one's result (the sysid node's chain): within the same
+    bounds as the fresh fits' (``test_identify.py``)."""
+    truth = REFERENCE_MODEL.parameters()
+    moves = 100
+    cur, enc = open_loop_window(PSI, moves=moves * CALIBRATION_WINDOWS, seed=1616)
+    z = []
+    start = None
+    kept = 0
+    for w in range(CALIBRATION_WINDOWS):
+        rows = slice(w * moves, (w + 1) * moves)
+        res = identify_window(cur[rows], enc[rows], sample_period=TAU, target_angle=PSI,
+                              warm_start=start)
+        kept += res.warm_started
+        start = WarmStart.from_result(res)
+        assert all(res.resolved)
+        est, std = res.model.parameters(), res.std_by_name()
+        z.append([(est[n] - truth[n]) / std[n] for n in truth])
+    assert kept == CALIBRATION_WINDOWS - 1
+    z_arr = np.array(z)
+    rms = float(np.sqrt(np.mean(z_arr**2)))
+    assert CALIBRATION_RMS[0] < rms < CALIBRATION_RMS[1], rms
+    each = dict(zip(truth, np.sqrt(np.mean(z_arr**2, axis=0)), strict=True))
+    lo, hi = CALIBRATION_RMS_EACH
+    assert all(lo < r < hi for r in each.values()), each
+
+
+def test_what_starts_a_window() -> None:
+    """Only a refined result with finite frequencies starts the next window; the cost test."""
+    cur, enc = simulate_window(PSI, moves=100, seed=3)
+    paper = identify_window(cur, enc, sample_period=TAU, method='paper-A', jackknife_groups=0)
+    assert WarmStart.from_result(paper) is None
+    refined = identify_window(cur, enc, sample_period=TAU)
+    assert WarmStart.from_result(refined) is not None
+    broken = replace(refined, natural_frequencies=(math.nan, *refined.natural_frequencies[1:]))
+    assert WarmStart.from_result(broken) is None
+    rows = 500
+    limit = rows + WARM_CHI2_Z * math.sqrt(2 * rows)
+    assert plausible(rows, rows)
+    assert plausible(limit - 1, rows)
+    assert not plausible(limit + 1, rows)
+    assert not plausible(math.nan, rows)
