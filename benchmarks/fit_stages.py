@@ -24,6 +24,10 @@ Each stage is timed by wrapping the functions that run it:
 - ``profiles``: the weakly excited modes' scans over their bands;
 - ``result``: covariance, Cramer-Rao bound, checks and the strong modes' local profiles.
 
+With ``--warm``, each window's fit starts from the previous window of its condition (or
+angle), as the sysid node's do (:mod:`galvo_sysid.ident.warm`): each sequence's first window is
+fitted afresh first, untimed, to start the next.
+
 It prints, per stage, the mean wall time per window, its share, and the calls per window; the
 median time per window; the machine's load. For a finer view, the same windows can be
 profiled line by line (``pip install line_profiler``; not a dependency of the project)::
@@ -31,8 +35,8 @@ profiled line by line (``pip install line_profiler``; not a dependency of the pr
     python -m cProfile -o /tmp/fit.prof benchmarks/fit_stages.py --windows 10
     python -c "import pstats; pstats.Stats('/tmp/fit.prof').sort_stats('tottime').print_stats(30)"
 
-Usage: ``.venv/bin/python benchmarks/fit_stages.py [--windows 20] [--family]`` (``--family``
-with ``--windows 3``: 42 windows, about 10 s).
+Usage: ``.venv/bin/python benchmarks/fit_stages.py [--windows 20] [--family] [--warm]``
+(``--family`` with ``--windows 3``: 42 windows, about 10 s).
 """
 
 from __future__ import annotations
@@ -58,6 +62,7 @@ import galvo_sysid.ident.identify as identify_module
 import galvo_sysid.ident.refine.fit as fit_module
 from galvo_sysid import keep_freed_memory
 from galvo_sysid.ident.refine.joint import JointProblem
+from galvo_sysid.ident.warm import WarmStart
 from galvo_sysid.model import PAPER_ANGLES, TAU
 from galvo_sysid.sim.simulator import simulate_window
 
@@ -96,6 +101,9 @@ def main() -> int:
                         help='windows to fit (with --family: noise seeds per condition)')
     parser.add_argument('--family', action='store_true',
                         help="issue 13's benchmark family (efficiency.py's conditions)")
+    parser.add_argument('--warm', action='store_true',
+                        help='start each fit from the previous window of its condition or angle '
+                             "(the sysid node's warm start)")
     args = parser.parse_args()
     if args.windows < 1:
         parser.error('--windows must be at least 1')
@@ -103,17 +111,27 @@ def main() -> int:
     windows = _family(args.windows) if args.family else _paper(args.windows)
     what = (f'{args.windows} noise seeds of each condition of efficiency.py' if args.family
             else 'paper scanner')
+    if args.warm:
+        what += ', each fit started from the previous window of its condition or angle'
     print(f'fit stages of identify_window (refined), {len(windows)} windows of 100 moves, '
           f'{what}; {datetime.datetime.now().isoformat(timespec="seconds")}, load average '
           f'{load}\n')
     windows[0]()  # imports, caches
+    starts: dict[Any, WarmStart | None] = {}
+    if args.warm:  # each sequence's first window afresh, untimed
+        for fit in windows:
+            if fit.keywords['group'] not in starts:
+                starts[fit.keywords['group']] = WarmStart.from_result(fit())
     for owner, name, stage in STAGES:
         setattr(owner, name, _timed(getattr(owner, name), stage))
     totals = []
     for fit in windows:
+        group = fit.keywords['group']
         start = time.perf_counter()
-        fit()
+        result = fit(warm_start=starts.get(group))
         totals.append(time.perf_counter() - start)
+        if args.warm:
+            starts[group] = WarmStart.from_result(result)
     n = len(windows)
     total = sum(totals)
     print(f'{"stage":<15} {"ms/window":>9} {"share":>6} {"calls/window":>12}')
@@ -128,13 +146,18 @@ def main() -> int:
     return 0
 
 
+def _fit(current: Any, encoder: Any, *, group: Any, **kwargs: Any) -> Any:
+    """identify_window, ``group`` naming the window's sequence (its condition or angle)."""
+    return identify_module.identify_window(current, encoder, **kwargs)
+
+
 def _paper(count: int) -> list[Any]:
     """Fits of paper-scanner windows (19 angles in turn, seeds 0..count-1)."""
     out = []
     for i in range(count):
-        cur, enc = simulate_window(PAPER_ANGLES[i % len(PAPER_ANGLES)], moves=100, seed=i)
-        out.append(functools.partial(identify_module.identify_window, cur, enc,
-                                     sample_period=TAU))
+        angle = PAPER_ANGLES[i % len(PAPER_ANGLES)]
+        cur, enc = simulate_window(angle, moves=100, seed=i)
+        out.append(functools.partial(_fit, cur, enc, group=angle, sample_period=TAU))
     return out
 
 
@@ -147,7 +170,7 @@ def _family(seeds: int) -> list[Any]:
         truth = cond.truth
         for seed in range(seeds):
             cur, enc = simulate_window(cond.angle, moves=100, seed=seed, config=cond.config)
-            out.append(functools.partial(identify_module.identify_window, cur, enc,
+            out.append(functools.partial(_fit, cur, enc, group=cond.name,
                                          sample_period=truth.sample_period, model=truth,
                                          target_angle=cond.angle))
     return out

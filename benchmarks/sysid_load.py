@@ -3,10 +3,14 @@
 Starts ``sysid`` (its default parameters: windows of 100 moves, two fit processes) as a child
 process and publishes simulated moves to it at ``--rate`` moves/s (a move is two
 ``MoveSamples`` of 512 samples: current and encoder) for ``--duration`` seconds, from a
-publisher thread of this process. The moves are simulated once (a schedule over a few angles,
-forward and back) and replayed with fresh move_ids and advancing stamps. Reported:
+publisher thread of this process. The moves are simulated once (``--cycles`` schedules over a
+few angles, forward and back, each with noise of its own) and replayed with fresh move_ids and
+advancing stamps: with the default 10 schedules, the windows of an angle repeat their data only
+every 10th window, so a fit started from the previous window of its angle (the node's
+``warm_start``, on unless ``--no-warm-start``) does not start at its own answer. Reported:
 
 - moves published and the rate achieved;
+- how many of the windows identified were fitted from the previous window of their angle;
 - moves lost: published, minus those in identified windows, minus those still waiting in
   windows that cannot be complete yet at the end; with the causes: halves that never reached
   the node (its own counter), moves it set aside, windows dropped because fits fell behind,
@@ -22,7 +26,7 @@ forward and back) and replayed with fresh move_ids and advancing stamps. Reporte
 
 Usage: ``.venv/bin/python benchmarks/sysid_load.py [--rate 1000] [--duration 60]
 [--window-size 100] [--fit-processes 2] [--method refined] [--angles 0.3 0.9 2.1]
-[--qos best_effort]``.
+[--qos best_effort] [--cycles 10] [--no-warm-start]``.
 """
 
 from __future__ import annotations
@@ -115,7 +119,7 @@ def pct(values: list[float], q: float) -> float:
 
 def run(args: argparse.Namespace, workdir: Path) -> dict[str, Any]:
     sim = GalvoSimulator(seed=17)
-    cycle = [(m.target_angle, m.current, m.encoder)
+    cycle = [(m.target_angle, m.current, m.encoder) for _ in range(args.cycles)
              for m in sim.moves(angles=args.angles, moves_per_angle=2 * args.window_size)]
     log_path = workdir / 'sysid.log'
     log = log_path.open('w')
@@ -123,7 +127,8 @@ def run(args: argparse.Namespace, workdir: Path) -> dict[str, Any]:
         [str(Path(sys.executable).parent / 'sysid'), '--ros-args', '-r', f'__ns:={NS}',
          '-p', f'window_size:={args.window_size}', '-p', f'fit_processes:={args.fit_processes}',
          '-p', 'stats_period:=1.0', '-p', 'diagnostics_period:=0.0',
-         '-p', f'qos_reliability:={args.qos}', '-p', f'method:={args.method}'],
+         '-p', f'qos_reliability:={args.qos}', '-p', f'method:={args.method}',
+         '-p', f'warm_start:={str(args.warm_start).lower()}'],
         stdout=log, stderr=subprocess.STDOUT)
     context = Context()
     rclpy.init(context=context)
@@ -239,6 +244,7 @@ def _measure(args: argparse.Namespace, node: Any, executor: SingleThreadedExecut
         'halves_not_received': 2 * published - c.get('halves_received', 0),
         'set_aside': c.get('moves_rejected', -1), 'dropped': c.get('windows_dropped', -1),
         'failed': c.get('windows_failed', -1), 'leftover': leftover,
+        'warm': c.get('windows_warm_started', -1), 'identified': c.get('windows_identified', -1),
         'median': 1e3 * statistics.median(latencies) if latencies else math.nan,
         'p99': 1e3 * pct(latencies, 0.99), 'max': 1e3 * max(latencies, default=math.nan),
         'rss_start': rss_start / 1024, 'rss_end': rss_end / 1024, 'rss_trace': rss_trace,
@@ -270,17 +276,26 @@ def main() -> int:
     parser.add_argument('--angles', type=float, nargs='+', default=[0.3, 0.9, 2.1])
     parser.add_argument('--qos', choices=['reliable', 'best_effort'], default='reliable',
                         help="the move topics' reliability (publisher and sysid)")
+    parser.add_argument('--cycles', type=int, default=10,
+                        help='distinct schedules simulated (each window of an angle has moves '
+                             'of its own noise until they repeat; default 10)')
+    parser.add_argument('--no-warm-start', dest='warm_start', action='store_false',
+                        help="the sysid node's warm_start parameter false (every fit afresh)")
     parser.add_argument('--warmup', type=float, default=6.0, help='seconds before publishing')
     parser.add_argument('--settle', type=float, default=15.0,
                         help='seconds to wait for the last results')
     args = parser.parse_args()
+    if args.cycles < 1:
+        parser.error('--cycles must be at least 1')
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     os.environ.setdefault('ROS_DOMAIN_ID', str(150 + os.getpid() % 50))
     workdir = Path(tempfile.mkdtemp(prefix='galvo_load_'))
     os.environ.setdefault('ROS_LOG_DIR', str(workdir / 'ros'))
     print(f'sysid load: {args.rate:g} moves/s for {args.duration:g} s, windows of '
           f'{args.window_size} moves over {len(args.angles)} angles (both signs), '
-          f'{args.fit_processes} fit processes, method {args.method}, {args.qos} QoS; '
+          f'{args.fit_processes} fit processes, method {args.method}, warm start '
+          f'{"on" if args.warm_start else "off"}, {args.qos} QoS; {args.cycles} distinct '
+          f'schedules of moves; '
           f'{os.cpu_count()} CPUs, '
           f'load average before {os.getloadavg()[0]:.2f}; log in {workdir}', flush=True)
     r = run(args, workdir)
@@ -295,6 +310,8 @@ def main() -> int:
         ('moves waiting in incomplete windows at the end', str(r['leftover'])),
         ('windows expected / results (full)',
          f'{r["windows_expected"]} / {r["windows_received"]} ({r["windows_full"]})'),
+        ('  of the windows identified, fits started from the previous window of the angle',
+         f'{r["warm"]} of {r["identified"]}'),
         ('latency per window median / p99 / max [ms]',
          f'{r["median"]:.0f} / {r["p99"]:.0f} / {r["max"]:.0f}'),
         ('CPU from the first move to the last result [s]', _cpu_row(r)),
