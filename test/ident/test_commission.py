@@ -100,3 +100,21 @@ def test_bad_input_is_refused():
     with pytest.raises(InvalidDataError):
         commission(short, sample_period=1e-5)
     assert math.isfinite(replace(random_scanner(19).model).sample_period)
+
+
+def test_a_delay_split_chosen_without_a_mode_is_revisited_when_the_mode_comes():
+    """random_scanner(29): 2 samples of delay + 0.04 T of lag, modes at 1.10 and 7.32 kHz
+    (0.58 x Nyquist). With only the first mode the fit prefers 1 sample + 1.07 T, under which
+    the second mode cannot be fitted (it ended at the damping bound); adding it under the
+    split one sample either side finds both modes and the true split."""
+    scanner = random_scanner(29)
+    truth = scanner.model
+    found = commission(_windows(29), sample_period=truth.sample_period)
+    model = found.model
+    assert [s.modes for s in found.steps][:3] == [0, 1, 2]
+    assert model.n_modes == truth.n_modes == 2
+    np.testing.assert_allclose(model.modal.natural_frequencies, truth.modal.natural_frequencies,
+                               rtol=1e-3)
+    assert model.dynamics.computation_delay == truth.dynamics.computation_delay == 2
+    assert model.dynamics.lag_time_constant == pytest.approx(
+        truth.dynamics.lag_time_constant, abs=0.05 * truth.sample_period)
