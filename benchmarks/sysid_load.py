@@ -16,7 +16,9 @@ every 10th window, so a fit started from the previous window of its angle (the n
   the node (its own counter), moves it set aside, windows dropped because fits fell behind,
   windows whose fit failed;
 - latency per window, from the publication of its last move to the arrival of its result
-  here (median, p99, max), results matched to windows by their stamps;
+  here (median, p99, max), results matched to windows by their stamps; and the same without
+  each angle's first window of each sign (with the warm start, the only ones fitted afresh:
+  what a long run converges to), and those first windows' latencies;
 - where the CPU went from the first move to the last result: the node's own process (its
   executor and message handling), its fit processes (and the CPU per window), and this
   process (the publisher thread and the result listener), each as a share of one CPU; the
@@ -232,6 +234,10 @@ def _measure(args: argparse.Namespace, node: Any, executor: SingleThreadedExecut
     text = log_path.read_text(errors='replace')
     c = last_counters(text)
     latencies = [arrivals[k] - t for k, t in completes.items() if k in arrivals]
+    # every angle's first window (both signs) is fitted afresh, the others from the previous
+    # window of their angle: the latency once each angle has had its first window
+    firsts = set(sorted(completes, key=completes.__getitem__)[:2 * len(args.angles)])
+    later = [arrivals[k] - t for k, t in completes.items() if k in arrivals and k not in firsts]
     published = int(state['published'])
     identified = sum(moves_in.values())
     leftover = int(state['leftover'])
@@ -247,6 +253,10 @@ def _measure(args: argparse.Namespace, node: Any, executor: SingleThreadedExecut
         'warm': c.get('windows_warm_started', -1), 'identified': c.get('windows_identified', -1),
         'median': 1e3 * statistics.median(latencies) if latencies else math.nan,
         'p99': 1e3 * pct(latencies, 0.99), 'max': 1e3 * max(latencies, default=math.nan),
+        'later': [1e3 * statistics.median(later) if later else math.nan,
+                  1e3 * pct(later, 0.99), 1e3 * max(later, default=math.nan)],
+        'firsts': sorted(round(1e3 * (arrivals[k] - completes[k])) for k in firsts
+                         if k in arrivals),
         'rss_start': rss_start / 1024, 'rss_end': rss_end / 1024, 'rss_trace': rss_trace,
         'children': children, 'cpu_wall': cpu_wall,
         'cpu': [b - a for a, b in zip(cpu_start, cpu_end, strict=True)],
@@ -314,6 +324,9 @@ def main() -> int:
          f'{r["warm"]} of {r["identified"]}'),
         ('latency per window median / p99 / max [ms]',
          f'{r["median"]:.0f} / {r["p99"]:.0f} / {r["max"]:.0f}'),
+        ("  without each angle's first window (both signs): median / p99 / max [ms]",
+         ' / '.join(f'{v:.0f}' for v in r['later'])
+         + f' (the first windows: {", ".join(str(v) for v in r["firsts"])} ms)'),
         ('CPU from the first move to the last result [s]', _cpu_row(r)),
         ('resident memory start -> end [MiB]',
          f'{r["rss_start"]:.0f} -> {r["rss_end"]:.0f} (node + {r["children"]} child '
