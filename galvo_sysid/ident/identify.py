@@ -132,7 +132,8 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
         target_angle: Signed commanded rotation [deg]; estimated from the encoder if None.
         model: The scanner's model (:class:`~galvo_sysid.model.plant.PlantModel`).
         n_modes: Resonant modes to identify (default: the model's; another number needs
-            ``bands``).
+            ``bands``). 0 (a model of the rigid body alone, as commissioning gives where the
+            moves excite no resonance) only with the refined method.
         warm_start: The refined fit starts from the previous window of the same moves
             (:mod:`galvo_sysid.ident.warm`: its estimate and noise model), and searches
             afresh only if that fit's cost is above what the noise allows; ignored by the
@@ -176,8 +177,8 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
                                      f'pass bands')
         bands = plant.mode_bands()
     min_span = float(opts.pop('min_angle_span', MIN_ANGLE_SPAN))
-    if n < 1:
-        raise ConfigurationError(f'n_modes must be >= 1, got {n}')
+    if n < 0 or (n == 0 and method != 'refined'):
+        raise ConfigurationError(f'n_modes must be >= 1 (>= 0 with the refined method), got {n}')
     if len(bands) != n:
         raise ConfigurationError(f'{len(bands)} bands for {n} modes')
     groups = int(opts.pop('jackknife_groups', _JACKKNIFE_GROUPS))

@@ -155,9 +155,12 @@ class PlantModel:
         return dict(self.uncertainty)
 
     def mode_bands(self) -> tuple[Band, ...]:
-        """Each mode's frequency band: the model's, or :func:`default_bands` around its modes."""
+        """Each mode's frequency band: the model's, or :func:`default_bands` around its modes
+        (none for a rigid body alone)."""  # noqa: D205, D209
         if self.bands is not None:
             return self.bands
+        if not self.modal.natural_frequencies:
+            return ()
         return default_bands(self.modal, sample_period=self.sample_period)
 
     def physics(self) -> Physics:

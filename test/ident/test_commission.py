@@ -118,3 +118,30 @@ def test_a_delay_split_chosen_without_a_mode_is_revisited_when_the_mode_comes():
     assert model.dynamics.computation_delay == truth.dynamics.computation_delay == 2
     assert model.dynamics.lag_time_constant == pytest.approx(
         truth.dynamics.lag_time_constant, abs=0.05 * truth.sample_period)
+
+
+def test_moves_that_excite_no_resonance_give_the_rigid_body_and_it_can_be_monitored():
+    """random_scanner(44): modes at 22 and 27 kHz that its moves do not excite above the
+    noise. Commissioning finds the rigid body alone, saying why the first mode was not added;
+    identify_window monitors that model (k0 within 0.1 %, the lag found); the paper methods,
+    which need a mode, refuse it with a reason."""
+    from galvo_sysid.errors import ConfigurationError as ConfigError
+    from galvo_sysid.ident.identify import identify_window
+
+    scanner = random_scanner(44)
+    truth = scanner.model
+    windows = _windows(44)
+    found = commission(windows, sample_period=truth.sample_period)
+    model = found.model
+    assert model.n_modes == 0
+    assert model.mode_bands() == ()
+    assert 'unresolved' in found.steps[-1].note
+    cur, enc = windows[4]  # 0.3 deg
+    res = identify_window(cur, enc, sample_period=truth.sample_period, model=model,
+                          target_angle=0.3)
+    assert res.n_modes == 0
+    assert res.k0 == pytest.approx(truth.modal.k0, rel=1e-3)
+    assert res.k0_std > 0
+    with pytest.raises(ConfigError, match='refined'):
+        identify_window(cur, enc, sample_period=truth.sample_period, model=model,
+                        target_angle=0.3, method='paper-A')
