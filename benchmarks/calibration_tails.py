@@ -2,7 +2,8 @@
 
 The other accuracy benchmarks judge the rms of error / std; a window that says a parameter is
 known to 1 % when it is 10 % off hides in an rms of hundreds. This one counts the tails over
-the scanner family (:func:`galvo_sysid.sim.family.random_scanner`, seeds 0..``--scanners``-1),
+the scanner family (:func:`galvo_sysid.sim.family.random_scanner`, ``--scanners`` seeds from
+``--first``, default 0..39),
 at the reference move (0.3 deg where it fits) and at fractions of it (weaker moves excite the
 upper modes less: their cost has several noisy basins and a lightly damped fit's cost is flat
 beyond a narrow peak, where the linearised std claims too much).
@@ -16,7 +17,7 @@ say nothing). For a calibrated Gaussian std the shares beyond 3, 4 and 5 std wou
 3, 4 and 5 std, rms(error / std) (each |z| clipped at 10), modes reported unresolved, and
 every error beyond 4 std.
 
-Run: ``.venv/bin/python benchmarks/calibration_tails.py [--scanners 40] [--noise 2]
+Run: ``.venv/bin/python benchmarks/calibration_tails.py [--scanners 40] [--first 0] [--noise 2]
 [--fractions 1 0.5]`` (about 40 s per move size here, two processes).
 """
 
@@ -110,12 +111,14 @@ def summarise(fraction: float, rows: list[dict[str, object]]) -> None:
 def main() -> int:
     keep_freed_memory()
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    parser.add_argument('--scanners', type=int, default=40)
+    parser.add_argument('--scanners', type=int, default=40, help='scanners of the family')
+    parser.add_argument('--first', type=int, default=0, help='seed of the first scanner')
     parser.add_argument('--noise', type=int, default=2, help='noise seeds per scanner and size')
     parser.add_argument('--fractions', nargs='+', type=float, default=[1.0, 0.5],
                         help='move sizes as fractions of the reference move')
     args = parser.parse_args()
-    print(f'calibration tails: scanners 0..{args.scanners - 1} of the family, {args.noise} noise '
+    seeds = range(args.first, args.first + args.scanners)
+    print(f'calibration tails: scanners {seeds[0]}..{seeds[-1]} of the family, {args.noise} noise '
           f'seeds, both directions, 100 moves per window; {time.strftime("%Y-%m-%d %H:%M")}, '
           f'load average {os.getloadavg()[0]:.2f} at the start')
     print('(expected for a calibrated Gaussian std: 0.27 % beyond 3, 0.0063 % beyond 4, '
@@ -126,7 +129,7 @@ def main() -> int:
     start = time.perf_counter()
     with multiprocessing.get_context('fork').Pool(2) as pool:
         for fraction in args.fractions:
-            jobs = [(s, k, fraction) for s in range(args.scanners) for k in range(args.noise)]
+            jobs = [(s, k, fraction) for s in seeds for k in range(args.noise)]
             rows = [r for part in pool.map(_job, jobs) for r in part]
             summarise(fraction, rows)
     print(f'\nfinished in {time.perf_counter() - start:.0f} s, load average '
