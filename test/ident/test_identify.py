@@ -121,10 +121,15 @@ def test_reported_std_is_calibrated_over_many_windows() -> None:
         assert all(res.resolved)
         est, std = res.model.parameters(), res.std_by_name()
         z.append([(est[n] - truth[n]) / std[n] for n in truth])
-    z_arr = np.array(z)
-    rms = float(np.sqrt(np.mean(z_arr**2)))
+    assert_calibrated(np.array(z), list(truth))
+
+
+def assert_calibrated(z: np.ndarray, names: list[str]) -> None:
+    """z (windows, parameters) of CALIBRATION_WINDOWS windows: the pooled rms within
+    CALIBRATION_RMS, each parameter's within CALIBRATION_RMS_EACH."""
+    rms = float(np.sqrt(np.mean(z**2)))
     assert CALIBRATION_RMS[0] < rms < CALIBRATION_RMS[1], rms
-    each = dict(zip(truth, np.sqrt(np.mean(z_arr**2, axis=0)), strict=True))
+    each = dict(zip(names, np.sqrt(np.mean(z**2, axis=0)), strict=True))
     lo, hi = CALIBRATION_RMS_EACH
     assert all(lo < r < hi for r in each.values()), each
 

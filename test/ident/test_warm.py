@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from openloop_data import open_loop_window
-from test_identify import CALIBRATION_RMS, CALIBRATION_RMS_EACH, CALIBRATION_WINDOWS
+from test_identify import CALIBRATION_WINDOWS, assert_calibrated
 
 import galvo_sysid.ident.identify as identify_module
 from galvo_sysid.ident.identify import identify_window
@@ -134,12 +134,7 @@ def test_warm_started_windows_in_a_row_stay_calibrated() -> None:
         est, std = res.model.parameters(), res.std_by_name()
         z.append([(est[n] - truth[n]) / std[n] for n in truth])
     assert kept == CALIBRATION_WINDOWS - 1
-    z_arr = np.array(z)
-    rms = float(np.sqrt(np.mean(z_arr**2)))
-    assert CALIBRATION_RMS[0] < rms < CALIBRATION_RMS[1], rms
-    each = dict(zip(truth, np.sqrt(np.mean(z_arr**2, axis=0)), strict=True))
-    lo, hi = CALIBRATION_RMS_EACH
-    assert all(lo < r < hi for r in each.values()), each
+    assert_calibrated(np.array(z), list(truth))
 
 
 def test_what_starts_a_window() -> None:
