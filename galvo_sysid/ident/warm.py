@@ -16,7 +16,9 @@ window's fit (:func:`~galvo_sysid.ident.identify.identify_window`'s ``warm_start
 The fit is kept only if its cost is what the noise allows (:func:`plausible`): a plant that
 moved to another basin since the previous window (a step change) leaves a misfit far above
 the noise, and the window is fitted afresh. Both ways the estimate is the same optimum, to a
-fraction of a std (``benchmarks/warm_start.py`` measures it, with the time saved).
+fraction of a std: ``benchmarks/efficiency.py --warm 20`` measures the warm fits' efficiency
+and calibration against the Cramer-Rao bound, ``benchmarks/fit_stages.py --warm`` the time
+saved.
 """
 
 from __future__ import annotations
