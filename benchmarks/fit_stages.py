@@ -25,8 +25,9 @@ Each stage is timed by wrapping the functions that run it:
 - ``result``: covariance, Cramer-Rao bound, checks and the strong modes' local profiles.
 
 With ``--warm``, each window's fit starts from the previous window of its condition (or
-angle), as the sysid node's do (:mod:`galvo_sysid.ident.warm`): each sequence's first window is
-fitted afresh first, untimed, to start the next.
+angle), as the sysid node's do (:mod:`galvo_sysid.ident.warm`). Each sequence starts from a
+window of its own noise seed (``START_SEED`` on), fitted afresh first and untimed, so no fit
+starts from the result of its own data (which would converge at once).
 
 It prints, per stage, the mean wall time per window, its share, and the calls per window; the
 median time per window; the machine's load. For a finer view, the same windows can be
@@ -65,6 +66,9 @@ from galvo_sysid.ident.refine.joint import JointProblem
 from galvo_sysid.ident.warm import WarmStart
 from galvo_sysid.model import PAPER_ANGLES, TAU
 from galvo_sysid.sim.simulator import simulate_window
+
+START_SEED = 10_000
+"""First noise seed of the untimed windows that start the ``--warm`` sequences."""
 
 STAGES: tuple[tuple[Any, str, str], ...] = (
     (identify_module, '_screen', 'screen'),
@@ -109,6 +113,8 @@ def main() -> int:
         parser.error('--windows must be at least 1')
     load = ', '.join(f'{x:.2f}' for x in os.getloadavg())
     windows = _family(args.windows) if args.family else _paper(args.windows)
+    firsts = (_family(1, first_seed=START_SEED) if args.family
+              else _paper(len(PAPER_ANGLES), first_seed=START_SEED))
     what = (f'{args.windows} noise seeds of each condition of efficiency.py' if args.family
             else 'paper scanner')
     if args.warm:
@@ -118,10 +124,9 @@ def main() -> int:
           f'{load}\n')
     windows[0]()  # imports, caches
     starts: dict[Any, WarmStart | None] = {}
-    if args.warm:  # each sequence's first window afresh, untimed
-        for fit in windows:
-            if fit.keywords['group'] not in starts:
-                starts[fit.keywords['group']] = WarmStart.from_result(fit())
+    if args.warm:  # each sequence starts from a window of another seed, fitted afresh, untimed
+        for fit in firsts:
+            starts[fit.keywords['group']] = WarmStart.from_result(fit())
     for owner, name, stage in STAGES:
         setattr(owner, name, _timed(getattr(owner, name), stage))
     totals = []
@@ -151,24 +156,25 @@ def _fit(current: Any, encoder: Any, *, group: Any, **kwargs: Any) -> Any:
     return identify_module.identify_window(current, encoder, **kwargs)
 
 
-def _paper(count: int) -> list[Any]:
-    """Fits of paper-scanner windows (19 angles in turn, seeds 0..count-1)."""
+def _paper(count: int, *, first_seed: int = 0) -> list[Any]:
+    """Fits of paper-scanner windows (19 angles in turn, seeds first_seed + 0..count-1)."""
     out = []
     for i in range(count):
         angle = PAPER_ANGLES[i % len(PAPER_ANGLES)]
-        cur, enc = simulate_window(angle, moves=100, seed=i)
+        cur, enc = simulate_window(angle, moves=100, seed=first_seed + i)
         out.append(functools.partial(_fit, cur, enc, group=angle, sample_period=TAU))
     return out
 
 
-def _family(seeds: int) -> list[Any]:
-    """Fits of efficiency.py's conditions, seeds 0..seeds-1 each, as efficiency.py fits them."""
+def _family(seeds: int, *, first_seed: int = 0) -> list[Any]:
+    """Fits of efficiency.py's conditions, seeds first_seed + 0..seeds-1 each, as efficiency.py
+    fits them."""  # noqa: D205, D209
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import efficiency as eff  # a script beside this one, not a package
     out = []
     for cond in eff.conditions():
         truth = cond.truth
-        for seed in range(seeds):
+        for seed in range(first_seed, first_seed + seeds):
             cur, enc = simulate_window(cond.angle, moves=100, seed=seed, config=cond.config)
             out.append(functools.partial(_fit, cur, enc, group=cond.name,
                                          sample_period=truth.sample_period, model=truth,
