@@ -2,8 +2,12 @@
 
 Starts ``sysid`` as a child process and publishes simulated moves to it at a fixed rate
 (moves/s; a move is two ``MoveSamples`` messages of 512 samples, current and encoder) for
-``--duration`` seconds per rate. The moves are simulated once (GalvoSimulator, a schedule of
-three angles forward and back) and replayed with fresh move_ids and stamps. Reported per rate:
+``--duration`` seconds per rate. The moves are simulated once (GalvoSimulator, ``--cycles``
+schedules of three angles forward and back, each with noise of its own) and replayed with
+fresh move_ids and stamps: with the default 10 schedules the windows of an angle repeat their
+data only every 10th window, so the node's warm start (each fit from the previous window of
+its angle) does not start at its own answer, as it did with one schedule replayed (the run
+of 2026-11-27 06:10: medians 61-71 ms). Reported per rate:
 
 - moves published and the rate achieved,
 - windows expected (every ``window_size`` moves of one signed angle) and results received
@@ -15,7 +19,7 @@ three angles forward and back) and replayed with fresh move_ids and stamps. Repo
 - the node's resident memory (with its fit child) after start-up and at the end.
 
 Usage: ``.venv/bin/python benchmarks/sysid_throughput.py [--rates 165 500 1000]
-[--duration 10] [--fit-processes 1] [--window-size 100]``.
+[--duration 10] [--fit-processes 1] [--window-size 100] [--cycles 10]``.
 """
 
 from __future__ import annotations
@@ -67,10 +71,10 @@ def rss_kib(pid: int) -> int:
     return total
 
 
-def simulate_moves() -> list[tuple[float, object, object]]:
-    """(target_angle, current, encoder) of one schedule cycle."""
+def simulate_moves(cycles: int) -> list[tuple[float, object, object]]:
+    """(target_angle, current, encoder) of ``cycles`` schedule cycles, one simulator run."""
     sim = GalvoSimulator(seed=11)
-    return [(m.target_angle, m.current, m.encoder)
+    return [(m.target_angle, m.current, m.encoder) for _ in range(cycles)
             for m in sim.moves(angles=ANGLES, moves_per_angle=200)]
 
 
@@ -190,14 +194,21 @@ def main() -> int:
     parser.add_argument('--duration', type=float, default=10.0)
     parser.add_argument('--fit-processes', type=int, default=2)
     parser.add_argument('--window-size', type=int, default=100)
+    parser.add_argument('--cycles', type=int, default=10,
+                        help='distinct schedules simulated (each window of an angle has moves '
+                             'of its own noise until they repeat; default 10)')
     args = parser.parse_args()
+    if args.cycles < 1:
+        parser.error('--cycles must be at least 1')
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     os.environ.setdefault('ROS_DOMAIN_ID', str(150 + os.getpid() % 50))
     workdir = Path(tempfile.mkdtemp(prefix='galvo_bench_'))
     os.environ.setdefault('ROS_LOG_DIR', str(workdir / 'ros'))
-    moves = simulate_moves()
+    moves = simulate_moves(args.cycles)
     print(f'sysid throughput: window_size {args.window_size}, fit_processes '
-          f'{args.fit_processes}, {args.duration:g} s per rate, {os.cpu_count()} CPUs; '
+          f'{args.fit_processes}, {args.duration:g} s per rate, {args.cycles} distinct '
+          f'schedules of moves, {os.cpu_count()} CPUs; load average before '
+          f'{os.getloadavg()[0]:.2f}; '
           f'logs in {workdir}')
     header = ('| moves/s asked | achieved | moves published | windows expected | results '
               '(full) | fits failed | moves set aside | windows dropped | latency median [ms] '

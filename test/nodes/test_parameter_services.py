@@ -54,6 +54,9 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / 'sections.yaml').write_text('sysid:\n  window_size: 20\n')
     (d / 'fraction.yaml').write_text('sysid:\n  ros__parameters:\n    window_size: 10.7\n')
     (d / 'flood.yaml').write_text('sysid:\n  ros__parameters:\n    stats_period: 1.0e-6\n')
+    (d / 'model_format.yaml').write_text('format: galvo-scanner-model\n')
+    (d / 'model_version.yaml').write_text('version: 7\n')
+    (d / 'model_syntax.yaml').write_text('mechanics: [1, {a: 2}\n')
     return d
 
 
@@ -81,6 +84,11 @@ START_CASES = [
      'parameters must be a mapping'),
     ('galvo_driver', ('-p', 'angles:=[0.3, "a"]'), 'a list of one of them'),
     ('watchdog', ('-p', 'publish_rate:=1000.0'), 'publish_rate must be <= 10'),
+    # a bad plant-model file (README: "a bad file: one line on stderr, exit code 2")
+    ('sysid', ('-p', 'model:={d}/absent_model.yaml'), 'absent_model.yaml'),
+    ('sysid', ('-p', 'model:={d}/model_format.yaml'), "format 'galvo-scanner-model' is not"),
+    ('galvo_driver', ('-p', 'model:={d}/model_version.yaml'), 'unsupported version 7'),
+    ('watchdog', ('-p', 'model:={d}/model_syntax.yaml'), 'model_syntax.yaml'),
 ]
 
 

@@ -9,7 +9,14 @@ import numpy as np
 import pytest
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.model import PAPER_MODEL, REFERENCE_MODEL, TAU, InputDynamics, discretize
+from galvo_sysid.model import (
+    PAPER_MODEL,
+    REFERENCE_MODEL,
+    TAU,
+    InputDynamics,
+    ModalModel,
+    discretize,
+)
 from galvo_sysid.sim.controller import (
     Controller,
     ControllerConfig,
@@ -150,6 +157,24 @@ def test_automatic_design_follows_the_model() -> None:
     assert m.closed_loop_stable
     assert m.gain_margin_db >= 6.0
     assert m.phase_margin >= 30.0
+
+
+def test_automatic_crossover_takes_the_lowest_of_its_three_limits() -> None:
+    """Each branch of min(f1 / 14, where the delay costs 0.15 rad, Nyquist / 8) in turn."""
+    # a low first mode: 1,400 Hz / 14 = 100 Hz, far below the delay's 1.5 kHz and 6.25 kHz
+    low_mode = dataclasses.replace(PAPER_MODEL, modal=dataclasses.replace(
+        REFERENCE_MODEL, natural_frequencies=(2 * math.pi * 1400, 2 * math.pi * 5200,
+                                               2 * math.pi * 5900)))
+    assert auto_controller_config(low_mode).crossover_frequency == pytest.approx(100.0)
+    # a mode's f1 / 14 is always below Nyquist / 8: that limit binds only a rigid body
+    # (a model with no mode found) without delay: 12.5 kHz / 8 = 1,562.5 Hz, two digits
+    # rounded down
+    rigid = dataclasses.replace(
+        PAPER_MODEL, sample_period=40e-6,
+        dynamics=InputDynamics(computation_delay=0, lag_time_constant=0.0),
+        modal=ModalModel(k0=REFERENCE_MODEL.k0, residues=(), natural_frequencies=(),
+                         damping_ratios=()))
+    assert auto_controller_config(rigid).crossover_frequency == pytest.approx(1500.0)
 
 
 def test_a_model_without_a_stable_design_is_refused() -> None:
