@@ -26,7 +26,7 @@ Each stage is timed by wrapping the functions that run it:
 
 With ``--warm``, each window's fit starts from the previous window of its condition (or
 angle), as the sysid node's do (:mod:`galvo_sysid.ident.warm`). Each sequence starts from a
-window of its own noise seed (``START_SEED`` on), fitted afresh first and untimed, so no fit
+window of another noise seed (``START_SEED`` on), fitted afresh first and untimed, so no fit
 starts from the result of its own data (which would converge at once).
 
 It prints, per stage, the mean wall time per window, its share, and the calls per window; the
@@ -113,7 +113,7 @@ def main() -> int:
         parser.error('--windows must be at least 1')
     load = ', '.join(f'{x:.2f}' for x in os.getloadavg())
     windows = _family(args.windows) if args.family else _paper(args.windows)
-    firsts = (_family(1, first_seed=START_SEED) if args.family
+    firsts = ([] if not args.warm else _family(1, first_seed=START_SEED) if args.family
               else _paper(len(PAPER_ANGLES), first_seed=START_SEED))
     what = (f'{args.windows} noise seeds of each condition of efficiency.py' if args.family
             else 'paper scanner')
