@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import ast
 import json
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -51,6 +53,31 @@ def test_refined_beats_the_paper_pipeline(windows_1psi: list) -> None:
     # the paper's qualitative failures, gone: k2 about -20 % from the pure-delay assumption
     assert np.median([e['k2'] for e in paper]) < -0.15
     assert abs(np.median([e['k2'] for e in refined])) < 0.015
+
+
+def _accuracy_targets() -> dict[str, float]:
+    """``TARGET_WINDOW`` of benchmarks/accuracy.py (the README's targets, one place)."""
+    path = Path(__file__).resolve().parents[2] / 'benchmarks' / 'accuracy.py'
+    tree = ast.parse(path.read_text())
+    for node in tree.body:
+        if (isinstance(node, ast.Assign) and isinstance(node.targets[0], ast.Name)
+                and node.targets[0].id == 'TARGET_WINDOW'):
+            return {str(k): float(v) for k, v in ast.literal_eval(node.value).items()}
+    raise AssertionError('TARGET_WINDOW not found in benchmarks/accuracy.py')
+
+
+def test_refined_meets_every_single_window_target_at_1_psi(windows_1psi: list) -> None:
+    # README "Accuracy": the refined fit meets issue 3's target (median |error| % of single
+    # windows of 100 moves at 1 psi) for all ten parameters; accuracy.py prints it over 30
+    # windows, these 8 hold it with a margin of 2.3-24x (k2 2.3x, zeta_3 2.7x, k3 2.9x).
+    # The paper pipeline misses k1, k2, k3 and zeta_3 here.
+    targets = _accuracy_targets()
+    assert set(targets) == set(REFERENCE_MODEL.parameters())
+    errors = [relative_errors(identify_window(cur, enc, sample_period=TAU).model)
+              for cur, enc in windows_1psi]
+    for name, target in targets.items():
+        median = 100 * float(np.median(np.abs([e[name] for e in errors])))
+        assert median < target, (name, median, target)
 
 
 def test_result_fields_and_serialisation(windows_1psi: list) -> None:
