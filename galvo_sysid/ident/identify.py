@@ -215,7 +215,7 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
     refined = None
     if warm_start is not None and warm_start.model.n_modes == n:
         refined = _warm_fit(cur, enc, t, warm_start, bands=bands, dynamics=dynamics,
-                            estimate_lag=estimate_lag, tuning=tuning)
+                            estimate_lag=estimate_lag, tuning=tuning, reference=reference)
     warm = refined is not None
     if refined is None:
         # Start from the paper pipeline (method A); its failure is not fatal because the
@@ -241,15 +241,18 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
 
 def _warm_fit(cur: NDArray[np.float64], enc: NDArray[np.float64], t: float, warm: WarmStart, *,
               bands: Sequence[tuple[float, float]], dynamics: InputDynamics,
-              estimate_lag: bool, tuning: RefineOptions) -> RefinedFit | None:
-    """The refined fit started from ``warm`` (:mod:`galvo_sysid.ident.warm`), or None where it
-    fails or its cost is above what the noise allows (the caller then fits afresh)."""  # noqa: D205, D209
+              estimate_lag: bool, tuning: RefineOptions,
+              reference: ModalModel) -> RefinedFit | None:
+    """The refined fit started from ``warm`` (:mod:`galvo_sysid.ident.warm`; its unresolved
+    modes from ``reference``), or None where it fails or its cost is above what the noise
+    allows (the caller then fits afresh)."""  # noqa: D205, D209
     if estimate_lag:
         dynamics = replace(dynamics, lag_time_constant=warm.lag_time_constant)
     try:
-        fit = refine_fit(cur, enc, sample_period=t, initial=warm.model, bands=bands,
+        fit = refine_fit(cur, enc, sample_period=t, initial=warm.start(reference), bands=bands,
                          dynamics=dynamics, estimate_lag=estimate_lag,
-                         options=replace(tuning, keep_initial_damping=True, scan_points=0),
+                         options=replace(tuning, keep_initial_damping=True, scan_points=0,
+                                         search_unplaced=False),
                          noise_model=warm.noise_model)
     except GalvoSysidError:
         return None

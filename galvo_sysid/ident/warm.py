@@ -7,7 +7,12 @@ expectation-maximisation over the moves' scatter). :class:`WarmStart` carries th
 window's fit (:func:`~galvo_sysid.ident.identify.identify_window`'s ``warm_start``), which then
 
 - starts the prewhitened polish from the previous estimate as it is (no ARX start, no scan,
-  no first unwhitened stage);
+  no first unwhitened stage), except that a mode the previous window did not resolve starts
+  from the scanner's reference model (its frequency and damping there were a noise fit, and
+  a polish from a noise fit of a weakly excited mode wanders: the slowest warm fits);
+- leaves a weakly excited mode where it is when its band profile finds a better basin that
+  would not place it either (``RefineOptions.search_unplaced`` off: it ends unresolved both
+  ways, and the second polish and profile are saved);
 - reuses the previous noise model with its level rescaled to this window's moves, unless this
   window's noise differs from it by more than a factor
   :data:`~galvo_sysid.ident.refine.joint.REUSE_LEVEL` (then it is estimated as usual);
@@ -24,7 +29,7 @@ saved.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 from galvo_sysid.model.modal import ModalModel
@@ -49,11 +54,26 @@ class WarmStart:
             the fit; the residues are solved anew).
         lag_time_constant: Its amplifier lag [s] (the start, when the lag is estimated).
         noise_model: Its stationary noise model (None: estimated anew).
+        resolved: Per mode, whether the previous window resolved it (empty: all).
     """
 
     model: ModalModel
     lag_time_constant: float
     noise_model: NoiseModel | None = None
+    resolved: tuple[bool, ...] = ()
+
+    def start(self, reference: ModalModel) -> ModalModel:
+        """The model the fit starts from: the previous estimate, each mode it did not resolve
+        at ``reference``'s frequency and damping (where the mode counts agree)."""  # noqa: D205, D209
+        m = self.model
+        if reference.n_modes != m.n_modes or all(self.resolved) or \
+                len(self.resolved) != m.n_modes:
+            return m
+        pick = [(w, z) if ok else (w_ref, z_ref) for ok, w, z, w_ref, z_ref in zip(
+            self.resolved, m.natural_frequencies, m.damping_ratios,
+            reference.natural_frequencies, reference.damping_ratios, strict=True)]
+        return replace(m, natural_frequencies=tuple(w for w, _ in pick),
+                       damping_ratios=tuple(z for _, z in pick))
 
     @classmethod
     def from_result(cls, result: IdentificationResult) -> WarmStart | None:
@@ -66,7 +86,7 @@ class WarmStart:
         if not all(math.isfinite(v) for v in values):
             return None
         return cls(model=result.model, lag_time_constant=float(result.lag_time_constant),
-                   noise_model=result.noise_model)
+                   noise_model=result.noise_model, resolved=tuple(result.resolved))
 
 
 def plausible(chi2: float, rows: int) -> bool:

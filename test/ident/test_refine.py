@@ -508,7 +508,7 @@ def test_a_second_start_only_for_a_mode_the_profiles_do_not_search(
     assert abs(error()) < 0.01
     if mode == 2:
         monkeypatch.setattr(fit_module, '_profile_and_search',
-                            lambda joint, x, band_list, polish: (x, []))
+                            lambda joint, x, band_list, polish, **_: (x, []))
         assert abs(error()) > 0.05
 
 
@@ -521,7 +521,7 @@ def test_the_profile_search_leaves_a_wrong_basin_for_the_better_one(case: str) -
     more than PROFILE_LEVEL, profiled again there. In the one-mode cases every mode's profile
     has a better basin."""
     from galvo_sysid.ident.refine.fit import _profile_and_search
-    from galvo_sysid.ident.refine.profile import PROFILE_LEVEL, profile_modes
+    from galvo_sysid.ident.refine.profile import PLACED_SHARE, PROFILE_LEVEL, profile_modes
 
     r = REFERENCE_MODEL
     if case.startswith('one'):
@@ -546,6 +546,45 @@ def test_the_profile_search_leaves_a_wrong_basin_for_the_better_one(case: str) -
     np.testing.assert_allclose(joint.unpack(found)[0], joint.unpack(best)[0], rtol=1e-4)
     assert joint.cost(found) == pytest.approx(joint.cost(best), abs=1e-3)
     assert all(p.better is None for p in profiles)  # the profiles of the new optimum
+    # a basin that places the mode is searched by the warm fits too (search_unplaced off)
+    assert profile_modes(joint, x, band_list)[-1].better_coverage < PLACED_SHARE
+    again, _ = _profile_and_search(joint, x, band_list, polish, search_unplaced=False)
+    np.testing.assert_allclose(again, found)
+
+
+@pytest.mark.parametrize(('coverage', 'search_unplaced', 'polished'), [
+    (0.8, False, False), (0.8, True, True), (0.3, False, True), (0.3, True, True)])
+def test_a_better_basin_that_would_not_place_its_mode_either_is_left_by_warm_fits(
+        monkeypatch: pytest.MonkeyPatch, coverage: float, search_unplaced: bool,
+        polished: bool) -> None:
+    """Without ``search_unplaced`` a better basin whose plausible points cover
+    PLACED_SHARE of the band or more is not polished (the mode is unresolved either way:
+    the plausible points around the fit include it); a basin that could place the mode is."""
+    import galvo_sysid.ident.refine.fit as fit_module
+    from galvo_sysid.ident.refine.profile import ModeProfile
+
+    joint, band_list, _ = _fit_problem([simulate_window(PSI, moves=30, seed=0)], REFERENCE_MODEL)
+    x = joint.pack(np.array(REFERENCE_MODEL.natural_frequencies),
+                   np.array(REFERENCE_MODEL.damping_ratios), 0.6 * TAU)
+    weak = ModeProfile(evidence=30.0, better=(1.05 * REFERENCE_MODEL.natural_frequencies[2], 0.01),
+                       omega_span=band_list[2], zeta_span=(1e-3, 0.1), k_span=(-1.0, 1.0),
+                       better_coverage=coverage)
+    strong = ModeProfile(evidence=1e5, better=None, omega_span=(1.0, 1.0),
+                         zeta_span=(0.01, 0.01), k_span=(0.0, 0.0))
+    monkeypatch.setattr(fit_module, 'profile_modes', lambda *a: [strong, strong, weak])
+    starts: list[np.ndarray] = []
+
+    def polish(x0: np.ndarray) -> np.ndarray:
+        starts.append(x0)
+        return x0
+
+    found, _ = fit_module._profile_and_search(joint, x, band_list, polish,
+                                              search_unplaced=search_unplaced)
+    assert bool(starts) == polished
+    if polished:
+        assert joint.unpack(starts[0])[0][2] == pytest.approx(weak.better[0])
+    else:
+        np.testing.assert_array_equal(found, x)
 
 
 def test_the_evidence_of_every_mode_from_one_factorisation_is_the_scan_at_its_point() -> None:

@@ -152,3 +152,33 @@ def test_what_starts_a_window() -> None:
     assert plausible(limit - 1, rows)
     assert not plausible(limit + 1, rows)
     assert not plausible(math.nan, rows)
+
+
+def test_a_mode_the_last_window_did_not_resolve_starts_from_the_reference() -> None:
+    """Its frequency and damping there were a noise fit: the next fit starts that mode at the
+    scanner's reference model, the resolved modes where the last window put them."""
+    w = REFERENCE_MODEL.natural_frequencies
+    last = replace(REFERENCE_MODEL, natural_frequencies=(1.001 * w[0], 1.002 * w[1], 1.07 * w[2]),
+                   damping_ratios=(0.005, 0.008, 0.0004))
+    start = WarmStart(model=last, lag_time_constant=0.6 * TAU, resolved=(True, True, False))
+    begun = start.start(REFERENCE_MODEL)
+    assert begun.natural_frequencies[:2] == last.natural_frequencies[:2]
+    assert begun.damping_ratios[:2] == last.damping_ratios[:2]
+    assert begun.natural_frequencies[2] == REFERENCE_MODEL.natural_frequencies[2]
+    assert begun.damping_ratios[2] == REFERENCE_MODEL.damping_ratios[2]
+    assert begun.residues == last.residues
+    # every mode resolved, no flags (an older start), or another number of modes: as it was
+    assert replace(start, resolved=(True,) * 3).start(REFERENCE_MODEL) is last
+    assert replace(start, resolved=()).start(REFERENCE_MODEL) is last
+    two = replace(REFERENCE_MODEL, residues=REFERENCE_MODEL.residues[:2],
+                  natural_frequencies=REFERENCE_MODEL.natural_frequencies[:2],
+                  damping_ratios=REFERENCE_MODEL.damping_ratios[:2])
+    assert start.start(two) is last
+
+
+def test_the_result_carries_which_modes_started_the_next_window_resolved(
+        windows_1psi: list) -> None:
+    result = identify_window(*windows_1psi[0], sample_period=TAU, target_angle=PSI)
+    start = WarmStart.from_result(result)
+    assert start is not None
+    assert start.resolved == result.resolved

@@ -56,6 +56,7 @@ from galvo_sysid.ident.refine.checks import (
 from galvo_sysid.ident.refine.joint import JointProblem, covariance
 from galvo_sysid.ident.refine.options import MAX_DAMPING, MIN_DAMPING, RefineOptions
 from galvo_sysid.ident.refine.profile import (
+    PLACED_SHARE,
     STRONG_EVIDENCE,
     ModeProfile,
     check_linearised,
@@ -257,7 +258,8 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
         x = polish(x)
     profiles: list[ModeProfile] = []
     if noisy and n:
-        x, profiles = _profile_and_search(joint, x, band_list, polish)
+        x, profiles = _profile_and_search(joint, x, band_list, polish,
+                                          search_unplaced=opt.search_unplaced)
     return _result(joint, x, band_list, profiles, resolve_z=opt.resolve_z,
                    adequacy_limit=opt.adequacy_limit if noisy else 0.0, dynamics=dynamics,
                    starts=len(starts), bound=opt.bound)
@@ -308,15 +310,22 @@ def _starts(joint: JointProblem, initial: ModalModel, x_init: NDArray[np.float64
 
 
 def _profile_and_search(joint: JointProblem, x: NDArray[np.float64],
-                        band_list: Sequence[tuple[float, float]], polish: Any) -> tuple[
+                        band_list: Sequence[tuple[float, float]], polish: Any, *,
+                        search_unplaced: bool = True) -> tuple[
                             NDArray[np.float64], list[ModeProfile]]:
     """Profiles of the modes at x; if a mode has a clearly better basin, polish from there
-    (kept if the cost is lower) and profile again."""  # noqa: D205, D209
+    (kept if the cost is lower) and profile again. Without ``search_unplaced``, a better
+    basin that would not place its mode either (its plausible points cover
+    :data:`~.profile.PLACED_SHARE` of the band) is not polished: the mode stays where it
+    is, unresolved either way (the plausible points around the fit include the better one,
+    so they cover at least as much of the band)."""  # noqa: D205, D209
     profiles = profile_modes(joint, x, band_list)
-    if any(p.better is not None for p in profiles):
+    search = [p.better is not None and (search_unplaced or p.better_coverage < PLACED_SHARE)
+              for p in profiles]
+    if any(search):
         omega, zeta, lag = joint.unpack(x)
         for i, p in enumerate(profiles):
-            if p.better is not None:
+            if search[i] and p.better is not None:
                 omega[i], zeta[i] = p.better
         x_new = polish(joint.pack(omega, zeta, lag))
         if joint.cost(x_new) < joint.cost(x):

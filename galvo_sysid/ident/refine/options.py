@@ -77,6 +77,12 @@ class RefineOptions:
             rather than from ``damping_start``: for a good start (e.g. pooled single-window
             results); without a scan that moves a frequency by over 1 %, the first (ordinary
             least-squares) stage is then left out.
+        search_unplaced: Polish from a better basin that a weakly excited mode's band
+            profile finds even where the mode could not be placed there either (the scan's
+            points within the profile level of that basin cover half its band): the mode
+            ends unresolved either way, and only its noise-fitted values and, by a fraction
+            of their std, the other modes' estimates depend on it. False saves that second
+            polish and profile (the sysid node's warm fits, :mod:`galvo_sysid.ident.warm`).
         bound: Also report the Cramer-Rao bound (``crlb_std``: the fit's ``A^-1`` when it
             was weighed by the stationary noise model, else a noise model estimated for it,
             about a sixth of a window's fit). The sysid node, whose messages do not carry
@@ -91,6 +97,7 @@ class RefineOptions:
     adequacy_limit: float = DEFAULT_ADEQUACY_LIMIT
     max_nfev: int = 100
     keep_initial_damping: bool = False
+    search_unplaced: bool = True
     bound: bool = True
 
     def __post_init__(self) -> None:
@@ -105,8 +112,10 @@ class RefineOptions:
                 raise ConfigurationError(f'{name} must be a whole number >= 0, got {value!r}')
         if self.max_nfev < 1:
             raise ConfigurationError('max_nfev must be >= 1')
-        if not isinstance(self.bound, bool):
-            raise ConfigurationError(f'bound must be true or false, got {self.bound!r}')
+        for name in ('bound', 'search_unplaced', 'keep_initial_damping'):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigurationError(f'{name} must be true or false, got '
+                                         f'{getattr(self, name)!r}')
         if not (self.resolve_z >= 0 and self.adequacy_limit >= 0):
             raise ConfigurationError('resolve_z and adequacy_limit must be >= 0')
 

@@ -53,6 +53,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     'MODE_EVIDENCE',
+    'PLACED_SHARE',
     'PROFILE_LEVEL',
     'SEARCHED_EVIDENCE',
     'STRONG_EVIDENCE',
@@ -69,6 +70,10 @@ mode are as plausible as the fit's (chi-square, 2 degrees of freedom, 99 %)."""
 
 MODE_EVIDENCE = 25.0
 """Cost reduction (same units) a mode must bring, the others fixed, to count as resolved."""
+
+PLACED_SHARE = 0.5
+"""A mode whose plausible frequencies cover this share of its band (in log frequency) or more
+is not placed by the data: not resolved (:meth:`ModeProfile.resolved`)."""
 
 STRONG_EVIDENCE = 400.0
 """A mode bringing this much cost reduction (20 sigma) is placed sharply: its std is the
@@ -120,6 +125,9 @@ class ModeProfile:
         k_span: Smallest and largest residue over the plausible points.
         local: A strong mode profiled near its fit (:func:`check_linearised`), not over its
             band.
+        better_coverage: With ``better``: the share of the band (in log frequency) that the
+            scan's points within :data:`PROFILE_LEVEL` of the better point cover; at
+            :data:`PLACED_SHARE` or more the mode is not placed in that basin either.
     """
 
     evidence: float
@@ -128,6 +136,7 @@ class ModeProfile:
     zeta_span: tuple[float, float]
     k_span: tuple[float, float]
     local: bool = False
+    better_coverage: float = 0.0
 
     def resolved(self, band: tuple[float, float]) -> bool:
         """Whether the data place the mode: it brings enough evidence and its plausible
@@ -135,7 +144,7 @@ class ModeProfile:
         profile places it however wide: its std says how well."""  # noqa: D205, D209
         lo, hi = band
         covered = math.log(self.omega_span[1] / self.omega_span[0]) / math.log(hi / lo)
-        return self.evidence >= MODE_EVIDENCE and (self.local or covered < 0.5)
+        return self.evidence >= MODE_EVIDENCE and (self.local or covered < PLACED_SHARE)
 
 
 def evidence(joint: JointProblem, omega: NDArray[np.float64], zeta: NDArray[np.float64],
@@ -196,13 +205,16 @@ def profile_modes(joint: JointProblem, x: NDArray[np.float64],
         delta = gain[0] - gain
         best = int(np.argmin(delta))
         better = (float(w_c[best]), float(z_c[best])) if delta[best] < -1.0 else None
+        near = w_c[delta < delta[best] + PROFILE_LEVEL]
+        coverage = math.log(float(near.max()) / float(near.min())) / math.log(hi / lo)
         # the plausible points: below PROFILE_LEVEL (3 std), and below ELSEWHERE_LEVEL drawn
         # in to 3 std of a quadratic cost (a long flat shoulder, that the lower level cuts)
         ok = delta < PROFILE_LEVEL
         wide = delta < ELSEWHERE_LEVEL
         out.append(ModeProfile(
             evidence=float(gain[0]), better=better, omega_span=_span(w_c, w, ok, wide),
-            zeta_span=_span(z_c, z, ok, wide), k_span=_span(k, float(k[0]), ok, wide)))
+            zeta_span=_span(z_c, z, ok, wide), k_span=_span(k, float(k[0]), ok, wide),
+            better_coverage=coverage if better is not None else 0.0))
     return out
 
 
