@@ -205,8 +205,10 @@ def profile_modes(joint: JointProblem, x: NDArray[np.float64],
         delta = gain[0] - gain
         best = int(np.argmin(delta))
         better = (float(w_c[best]), float(z_c[best])) if delta[best] < -1.0 else None
-        near = w_c[delta < delta[best] + PROFILE_LEVEL]
-        coverage = math.log(float(near.max()) / float(near.min())) / math.log(hi / lo)
+        coverage = 0.0
+        if better is not None:  # how much of the band the better basin would leave open
+            near = w_c[delta < delta[best] + PROFILE_LEVEL]
+            coverage = math.log(float(near.max()) / float(near.min())) / math.log(hi / lo)
         # the plausible points: below PROFILE_LEVEL (3 std), and below ELSEWHERE_LEVEL drawn
         # in to 3 std of a quadratic cost (a long flat shoulder, that the lower level cuts)
         ok = delta < PROFILE_LEVEL
@@ -214,7 +216,7 @@ def profile_modes(joint: JointProblem, x: NDArray[np.float64],
         out.append(ModeProfile(
             evidence=float(gain[0]), better=better, omega_span=_span(w_c, w, ok, wide),
             zeta_span=_span(z_c, z, ok, wide), k_span=_span(k, float(k[0]), ok, wide),
-            better_coverage=coverage if better is not None else 0.0))
+            better_coverage=coverage))
     return out
 
 
