@@ -15,6 +15,8 @@ every 10th window, so a fit started from the previous window of its angle (the n
   windows that cannot be complete yet at the end; with the causes: halves that never reached
   the node (its own counter), moves it set aside, windows dropped because fits fell behind,
   windows whose fit failed;
+- with ``--fit-budget-ms``, how many fits were cut short at the node's ``fit_budget_ms``;
+  and in any case, how many modes the results report unresolved (what a budget costs);
 - latency per window, from the publication of its last move to the arrival of its result
   here (median, p99, max), results matched to windows by their stamps; and the same without
   each angle's first window of each sign (with the warm start, the only ones fitted afresh:
@@ -28,7 +30,7 @@ every 10th window, so a fit started from the previous window of its angle (the n
 
 Usage: ``.venv/bin/python benchmarks/sysid_load.py [--rate 1000] [--duration 60]
 [--window-size 100] [--fit-processes 2] [--method refined] [--angles 0.3 0.9 2.1]
-[--qos best_effort] [--cycles 10] [--no-warm-start]``.
+[--qos best_effort] [--cycles 10] [--no-warm-start] [--fit-budget-ms 0]``.
 """
 
 from __future__ import annotations
@@ -130,7 +132,8 @@ def run(args: argparse.Namespace, workdir: Path) -> dict[str, Any]:
          '-p', f'window_size:={args.window_size}', '-p', f'fit_processes:={args.fit_processes}',
          '-p', 'stats_period:=1.0', '-p', 'diagnostics_period:=0.0',
          '-p', f'qos_reliability:={args.qos}', '-p', f'method:={args.method}',
-         '-p', f'warm_start:={str(args.warm_start).lower()}'],
+         '-p', f'warm_start:={str(args.warm_start).lower()}',
+         '-p', f'fit_budget_ms:={float(args.fit_budget_ms)}'],
         stdout=log, stderr=subprocess.STDOUT)
     context = Context()
     rclpy.init(context=context)
@@ -161,11 +164,13 @@ def _measure(args: argparse.Namespace, node: Any, executor: SingleThreadedExecut
             for t in SIGNAL_TOPICS.values()]
     arrivals: dict[int, float] = {}  # stamp [ns] of a window's last move -> arrival time
     moves_in: dict[int, int] = {}
+    unresolved: dict[int, int] = {}  # modes reported unresolved per window
 
     def on_result(msg: ModalParameters) -> None:
         key = round(stamp_to_seconds(msg.header.stamp) * 1e6)
         arrivals[key] = time.monotonic()
         moves_in[key] = int(msg.moves)
+        unresolved[key] = sum(not r for r in msg.resolved)
 
     node.create_subscription(ModalParameters, absolute_topic(RESULT_TOPIC, namespace=NS), on_result,
                              QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
@@ -251,6 +256,8 @@ def _measure(args: argparse.Namespace, node: Any, executor: SingleThreadedExecut
         'set_aside': c.get('moves_rejected', -1), 'dropped': c.get('windows_dropped', -1),
         'failed': c.get('windows_failed', -1), 'leftover': leftover,
         'warm': c.get('windows_warm_started', -1), 'identified': c.get('windows_identified', -1),
+        'cut': c.get('windows_cut_short', -1), 'unresolved': sum(unresolved.values()),
+        'unresolved_windows': sum(1 for v in unresolved.values() if v),
         'median': 1e3 * statistics.median(latencies) if latencies else math.nan,
         'p99': 1e3 * pct(latencies, 0.99), 'max': 1e3 * max(latencies, default=math.nan),
         'later': [1e3 * statistics.median(later) if later else math.nan,
@@ -291,6 +298,8 @@ def main() -> int:
                              'of its own noise until they repeat; default 10)')
     parser.add_argument('--no-warm-start', dest='warm_start', action='store_false',
                         help="the sysid node's warm_start parameter false (every fit afresh)")
+    parser.add_argument('--fit-budget-ms', type=float, default=0.0,
+                        help="the sysid node's fit_budget_ms (default 0: no budget)")
     parser.add_argument('--warmup', type=float, default=6.0, help='seconds before publishing')
     parser.add_argument('--settle', type=float, default=15.0,
                         help='seconds to wait for the last results')
@@ -304,7 +313,9 @@ def main() -> int:
     print(f'sysid load: {args.rate:g} moves/s for {args.duration:g} s, windows of '
           f'{args.window_size} moves over {len(args.angles)} angles (both signs), '
           f'{args.fit_processes} fit processes, method {args.method}, warm start '
-          f'{"on" if args.warm_start else "off"}, {args.qos} QoS; {args.cycles} distinct '
+          f'{"on" if args.warm_start else "off"}, fit budget '
+          f'{f"{args.fit_budget_ms:g} ms" if args.fit_budget_ms else "none"}, {args.qos} QoS; '
+          f'{args.cycles} distinct '
           f'schedules of moves; '
           f'{os.cpu_count()} CPUs, '
           f'load average before {os.getloadavg()[0]:.2f}; log in {workdir}', flush=True)
@@ -322,6 +333,10 @@ def main() -> int:
          f'{r["windows_expected"]} / {r["windows_received"]} ({r["windows_full"]})'),
         ('  of the windows identified, fits started from the previous window of the angle',
          f'{r["warm"]} of {r["identified"]}'),
+        ('  of those, fits cut short at fit_budget_ms (weak modes not profiled)',
+         f'{r["cut"]} (budget: {f"{args.fit_budget_ms:g} ms" if args.fit_budget_ms else "none"})'),
+        ('modes reported unresolved (in windows)',
+         f'{r["unresolved"]} (in {r["unresolved_windows"]} of {r["windows_received"]})'),
         ('latency per window median / p99 / max [ms]',
          f'{r["median"]:.0f} / {r["p99"]:.0f} / {r["max"]:.0f}'),
         ("  without each angle's first window (both signs): median / p99 / max [ms]",

@@ -236,7 +236,7 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
                          resolved=refined.resolved, set_aside=set_aside,
                          crlb_std=_modal_only(refined.crlb_by_name()),
                          noise_model=refined.noise_models[0] if refined.noise_models else None,
-                         warm_started=warm)
+                         warm_started=warm, cut_short=refined.cut_short)
 
 
 def _warm_fit(cur: NDArray[np.float64], enc: NDArray[np.float64], t: float, warm: WarmStart, *,

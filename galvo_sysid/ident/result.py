@@ -54,6 +54,10 @@ class IdentificationResult:
         warm_started: Whether the refined fit is the one started from the previous window's
             result (:class:`~galvo_sysid.ident.warm.WarmStart`) rather than from its own
             search. Not part of the result's data either.
+        cut_short: Whether the refined fit ran past its deadline and left out the weakly
+            excited modes' band profiles (:class:`~galvo_sysid.ident.refine.RefineOptions`'s
+            ``deadline``; the sysid node's ``fit_budget_ms``): the modes they would have
+            placed are reported unresolved. Not part of the result's data either.
     """
 
     target_angle: float
@@ -75,6 +79,7 @@ class IdentificationResult:
     crlb_std: dict[str, float] = field(default_factory=dict)
     noise_model: NoiseModel | None = field(default=None, compare=False, repr=False)
     warm_started: bool = field(default=False, compare=False, repr=False)
+    cut_short: bool = field(default=False, compare=False, repr=False)
 
     @property
     def model(self) -> ModalModel:

@@ -70,6 +70,10 @@ class Window:
             :meth:`~galvo_sysid.monitor.pairing.MoveWindower.flush` before it was full.
         warm_start: What its refined fit starts from (the previous window of its angle, set
             by the sysid node: :class:`~galvo_sysid.ident.warm.WarmStart`), None: afresh.
+        deadline: The :func:`time.monotonic` time past which its refined fit leaves out
+            what it can do without (set by the sysid node from ``fit_budget_ms`` when the
+            window completes; :class:`~galvo_sysid.ident.refine.RefineOptions`), None:
+            no deadline. The clock is the machine's, so it holds in the fit processes too.
     """
 
     index: int
@@ -82,6 +86,7 @@ class Window:
     last_stamp: float
     partial: bool = False
     warm_start: WarmStart | None = None
+    deadline: float | None = None
 
     @property
     def moves(self) -> int:

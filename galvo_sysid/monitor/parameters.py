@@ -303,6 +303,10 @@ SYSID_PARAMETERS = (
     ParamSpec('nb', 15, 'ARX order of B[q] (paper pipeline, also the refined start)', 2, 60),
     ParamSpec('warm_start', True, "start each window's refined fit from the previous window "
               'of its angle (refitted afresh where that fit is not plausible)'),
+    ParamSpec('fit_budget_ms', 0.0, "milliseconds from a window's completion past which its "
+              "refined fit leaves out the weakly excited modes' band profiles (those modes "
+              'reported unresolved, the window counted in windows_cut_short; 0: no budget)',
+              1.0, 60_000.0, zero_off=True),
     ParamSpec('queue_size', 16, 'windows waiting for a fit at most (oldest dropped beyond)',
               1, 10_000, read_only=True),
     ParamSpec('fit_processes', 2, 'child processes for the fits (0: fit on a thread)', 0, 16,

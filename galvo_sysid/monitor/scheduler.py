@@ -47,7 +47,8 @@ def fit_window(window: Window, *, method: str = 'refined', model: PlantModel | N
     """Identify one window with :func:`~galvo_sysid.ident.identify.identify_window` (picklable).
 
     Args:
-        window: The window (its refined fit started from its ``warm_start`` if set).
+        window: The window (its refined fit started from its ``warm_start`` if set, and
+            cut short past its ``deadline`` if set).
         method: Identification method.
         model: The scanner's plant model (modes, bands, input dynamics, sample period;
             None: the paper's).
@@ -59,9 +60,12 @@ def fit_window(window: Window, *, method: str = 'refined', model: PlantModel | N
     """
     from galvo_sysid.ident.identify import identify_window
 
+    opts = dict(options or {})
+    if window.deadline is not None and method == 'refined':
+        opts['deadline'] = window.deadline
     return identify_window(window.current, window.encoder, sample_period=window.sample_period,
                            method=method, target_angle=window.target_angle, model=model,
-                           warm_start=window.warm_start, **dict(options or {}))
+                           warm_start=window.warm_start, **opts)
 
 
 def node_fit(*, method: str, model: PlantModel | None, na: int,

@@ -96,13 +96,17 @@ class SysidTask:
             record length (:mod:`galvo_sysid.ident.warm`).
         model_path: The plant-model file the fits use ('' or None: the packaged paper
             model), for the messages.
+        fit_budget: Seconds from a window's completion past which its refined fit leaves out
+            what it can do without (the weak modes' band profiles, reported unresolved; see
+            :class:`~galvo_sysid.ident.refine.RefineOptions`' ``deadline``); 0: no budget.
     """
 
     def __init__(self, fit: Callable[[Window], IdentificationResult],
                  on_result: Callable[[FitOutcome], None], *, warn: Callable[[str], None],
                  windower: Mapping[str, Any] | None = None, queue_size: int = 8,
                  processes: int = 0, warnings_per_second: int = 20,
-                 warm_start: bool = True, model_path: str | None = None) -> None:
+                 warm_start: bool = True, model_path: str | None = None,
+                 fit_budget: float = 0.0) -> None:
         self.windower = MoveWindower(**dict(windower or {}))
         self._warn = RateLimitedLog(warn, per_second=warnings_per_second)
         self._on_result = on_result
@@ -121,6 +125,9 @@ class SysidTask:
         self.warm_start = bool(warm_start)
         self.windows_warm = 0
         """Windows identified by a fit started from the previous window of their angle."""
+        self.fit_budget = float(fit_budget)
+        self.windows_cut_short = 0
+        """Windows whose fit passed its budget and left out the weak modes' profiles."""
         self._starts: OrderedDict[tuple[int, int], WarmStart] = OrderedDict()
 
     def add(self, half: MoveHalf) -> list[Window]:
@@ -152,7 +159,10 @@ class SysidTask:
         return (round(w.target_angle / self.windower.angle_resolution), w.current.shape[-1])
 
     def _started(self, w: Window) -> Window:
-        """``w`` with the start its fit takes (the latest result of its angle), if any."""
+        """``w`` with the start its fit takes (the latest result of its angle), if any, and
+        its deadline (``fit_budget`` from now), if any."""  # noqa: D205, D209
+        if self.fit_budget > 0:
+            w = replace(w, deadline=time.monotonic() + self.fit_budget)
         if not self.warm_start:
             return w
         with self._lock:
@@ -221,6 +231,7 @@ class SysidTask:
                 self._starts.pop(key, None)
             if outcome.result is not None:
                 self.windows_warm += outcome.result.warm_started
+                self.windows_cut_short += outcome.result.cut_short
                 self.latest_mismatched = False
             elif outcome.mismatch:
                 self.latest_mismatched = True
@@ -232,15 +243,19 @@ class SysidTask:
         elif outcome.error is not None:
             self._warn(f'window {w.index} ({w.target_angle:g} deg, {w.moves} moves) not '
                        f'identified: {outcome.error}', key='fit failed')
+        elif outcome.result is not None and outcome.result.cut_short:
+            self._warn(f'window {w.index} ({w.target_angle:g} deg) fit cut short at its budget '
+                       f'of {1e3 * self.fit_budget:.0f} ms: its weakly excited modes were not '
+                       f'profiled and are reported unresolved', key='cut short')
         self._on_result(outcome)
 
     def stats(self) -> dict[str, int]:
         """Counters: halves received, moves accepted/rejected (and of those, halves of
         another sample period than the model's, halves refused before decoding, halves set
         aside for their stamp, waiting halves evicted), windows identified (and of those,
-        by a fit started from the previous window of their angle) / failed / not
-        matching the model / dropped, open windows evicted / expired, resets, queue, bytes of
-        samples buffered."""  # noqa: D205, D209
+        by a fit started from the previous window of their angle, and by a fit cut short at
+        its budget) / failed / not matching the model / dropped, open windows evicted /
+        expired, resets, queue, bytes of samples buffered."""  # noqa: D205, D209
         w = self.windower
         f = self.fitter
         return {'halves_received': self.halves_received, 'moves_accepted': w.moves_accepted,
@@ -251,6 +266,7 @@ class SysidTask:
                 'held_halves': w.held, 'open_windows': w.open_windows,
                 'windows_completed': self.windows_completed,
                 'windows_identified': f.fitted, 'windows_warm_started': self.windows_warm,
+                'windows_cut_short': self.windows_cut_short,
                 'windows_failed': f.failed,
                 'windows_mismatched': f.mismatched, 'windows_dropped': f.dropped,
                 'windows_waiting': f.waiting, 'windows_evicted': w.windows_evicted,

@@ -98,7 +98,8 @@ class SysidNode(Node):
                               warn=self.log.warning, windower=self._windower_args(v),
                               queue_size=v['queue_size'], processes=v['fit_processes'],
                               warnings_per_second=v['warnings_per_second'],
-                              warm_start=v['warm_start'], model_path=v['model'])
+                              warm_start=v['warm_start'], model_path=v['model'],
+                              fit_budget=1e-3 * v['fit_budget_ms'])
         qos = moves_qos(v['qos_depth'], reliability=v['qos_reliability'])
         # raw: the serialized bytes; the record's length is read before any sample is decoded.
         # In batches: the executor's every wait costs more than a half does (receiving.py).
@@ -141,6 +142,8 @@ class SysidNode(Node):
                 f'moves and {old.pending} unpaired halves discarded')
         if 'warm_start' in changed:
             self.task.warm_start = values['warm_start']
+        if 'fit_budget_ms' in changed:
+            self.task.fit_budget = 1e-3 * values['fit_budget_ms']
         if changed & {*WINDOWER_PARAMETERS, 'method', 'na', 'nb', 'warm_start'}:
             self.task.clear_starts()  # the next window of each angle searches afresh
         if 'stats_period' in changed:

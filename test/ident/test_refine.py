@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+import time
 from typing import Any
 
 import numpy as np
@@ -508,7 +510,7 @@ def test_a_second_start_only_for_a_mode_the_profiles_do_not_search(
     assert abs(error()) < 0.01
     if mode == 2:
         monkeypatch.setattr(fit_module, '_profile_and_search',
-                            lambda joint, x, band_list, polish, **_: (x, []))
+                            lambda joint, x, band_list, polish, **_: (x, [], False))
         assert abs(error()) > 0.05
 
 
@@ -541,14 +543,14 @@ def test_the_profile_search_leaves_a_wrong_basin_for_the_better_one(case: str) -
     x = polish(joint.pack(off, zeta, 0.6 * TAU))
     assert abs(joint.unpack(x)[0][-1] / omega[-1] - 1) > 0.1  # stays in the wrong basin
     assert profile_modes(joint, x, band_list)[-1].better is not None
-    found, profiles = _profile_and_search(joint, x, band_list, polish)
+    found, profiles, _ = _profile_and_search(joint, x, band_list, polish)
     assert joint.cost(found) < joint.cost(x) - PROFILE_LEVEL
     np.testing.assert_allclose(joint.unpack(found)[0], joint.unpack(best)[0], rtol=1e-4)
     assert joint.cost(found) == pytest.approx(joint.cost(best), abs=1e-3)
     assert all(p.better is None for p in profiles)  # the profiles of the new optimum
     # a basin that places the mode is searched by the warm fits too (search_unplaced off)
     assert profile_modes(joint, x, band_list)[-1].better_coverage < PLACED_SHARE
-    again, _ = _profile_and_search(joint, x, band_list, polish, search_unplaced=False)
+    again, _, _ = _profile_and_search(joint, x, band_list, polish, search_unplaced=False)
     np.testing.assert_allclose(again, found)
 
 
@@ -578,13 +580,23 @@ def test_a_better_basin_that_would_not_place_its_mode_either_is_left_by_warm_fit
         starts.append(x0)
         return x0
 
-    found, _ = fit_module._profile_and_search(joint, x, band_list, polish,
-                                              search_unplaced=search_unplaced)
+    found, _, cut = fit_module._profile_and_search(joint, x, band_list, polish,
+                                                   search_unplaced=search_unplaced)
     assert bool(starts) == polished
+    assert not cut
     if polished:
         assert joint.unpack(starts[0])[0][2] == pytest.approx(weak.better[0])
     else:
         np.testing.assert_array_equal(found, x)
+    # past its deadline the fit polishes no basin and says it was cut short
+    starts.clear()
+    found, profiles, cut = fit_module._profile_and_search(
+        joint, x, band_list, polish, search_unplaced=search_unplaced,
+        deadline=time.monotonic() - 1.0)
+    assert not starts
+    np.testing.assert_array_equal(found, x)
+    assert cut == polished  # cut short only where there was a basin to polish
+    assert profiles == [strong, strong, weak]
 
 
 def test_the_evidence_of_every_mode_from_one_factorisation_is_the_scan_at_its_point() -> None:
@@ -781,3 +793,52 @@ def test_a_quadratic_costs_span_is_the_3_std_one_and_a_shoulder_widens_it() -> N
     assert lo == pytest.approx(94.0, abs=0.1)
     assert values[ok].max() < 107.7
     assert hi == pytest.approx(100.0 + 12.0 * 3.0 / np.sqrt(ELSEWHERE_LEVEL), abs=1e-9)
+
+
+def test_a_fit_past_its_deadline_leaves_out_the_band_profiles_and_says_so() -> None:
+    """RefineOptions.deadline (the sysid node's fit_budget_ms): a fit past it is the same fit
+    without the weakly excited modes' band profiles: the modes a profile would have placed
+    are reported unresolved with their band's std, a mode with SEARCHED_EVIDENCE keeps its
+    estimate (to a fraction of its std) and its std (to a few per cent), and the fit says it
+    was cut short. A deadline not reached
+    changes nothing."""
+    from galvo_sysid.ident.refine.checks import bands_for
+    from galvo_sysid.ident.refine.options import MAX_DAMPING
+
+    cur, enc = simulate_window(2.1, moves=100, seed=3)
+    kwargs: dict[str, Any] = {'sample_period': TAU, 'initial': REFERENCE_MODEL}
+    free = refine_fit(cur, enc, **kwargs)
+    later = refine_fit(cur, enc, **kwargs, options=RefineOptions(deadline=time.monotonic() + 600))
+    past = refine_fit(cur, enc, **kwargs, options=RefineOptions(deadline=0.0))
+    assert not free.cut_short
+    assert not later.cut_short
+    assert past.cut_short
+    np.testing.assert_array_equal(later.covariance, free.covariance)
+    assert later.model == free.model
+    band_list = bands_for(REFERENCE_MODEL, None, TAU)
+    # the paper scanner's third mode is weakly excited: its band profile places it,
+    # without the profile it is not placed; the first two bring evidence enough unscanned
+    assert free.unresolved_modes == ()
+    assert past.unresolved_modes == (3,)
+    weak = [2]
+    std, std_free = past.std_by_name(), free.std_by_name()
+    for i in range(3):
+        lo, hi = band_list[i]
+        name = f'omega_{i + 1}'
+        if i in weak:
+            assert std[name] >= (hi - lo) / math.sqrt(12.0)
+            assert std[f'zeta_{i + 1}'] >= MAX_DAMPING / math.sqrt(12.0)
+        else:
+            # (the free fit polished again from the third mode's better basin, which moves
+            # the others by a fraction of their std and their std by a few per cent)
+            assert std[name] == pytest.approx(std_free[name], rel=0.1)
+            assert abs(past.model.natural_frequencies[i]
+                       - free.model.natural_frequencies[i]) < 0.5 * std_free[name]
+
+
+@pytest.mark.parametrize('bad', [True, float('nan'), float('inf'), '1.0'])
+def test_a_deadline_that_is_not_a_finite_time_is_refused(bad: Any) -> None:
+    from galvo_sysid.ident.refine.options import RefineOptions
+
+    with pytest.raises(ConfigurationError, match='deadline'):
+        RefineOptions(deadline=bad)

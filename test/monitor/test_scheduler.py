@@ -232,3 +232,27 @@ def test_the_node_fit_leaves_out_only_the_bound() -> None:
     assert offline.crlb_std
     assert by_node.model == offline.model
     assert by_node.std_by_name() == offline.std_by_name()
+
+
+def test_a_windows_deadline_reaches_the_refined_fit_and_no_other() -> None:
+    """A window's ``deadline`` (the sysid node's ``fit_budget_ms``) is passed to the refined
+    fit, which past it is cut short; the paper methods, which have no stage to leave out, fit
+    the window as without it (no unknown option)."""
+    from dataclasses import replace
+
+    from galvo_sysid.model import TAU
+    from galvo_sysid.monitor.scheduler import fit_window, node_fit
+    from galvo_sysid.sim.simulator import simulate_window
+
+    cur, enc = simulate_window(2.1, moves=100, seed=3)
+    win = Window(index=0, target_angle=2.1, current=cur, encoder=enc, sample_period=TAU,
+                 move_ids=tuple(range(100)), first_stamp=0.0, last_stamp=1.0)
+    past = replace(win, deadline=time.monotonic() - 1.0)
+    refined = node_fit(method='refined', model=None, na=15, nb=15)
+    assert not refined(win).cut_short
+    cut = refined(past)
+    assert cut.cut_short
+    assert cut.resolved == (True, True, False)
+    paper = node_fit(method='paper-A', model=None, na=15, nb=15)
+    assert paper(past) == paper(win)
+    assert fit_window(replace(win, deadline=time.monotonic() + 600)) == fit_window(win)

@@ -472,3 +472,44 @@ def test_warm_start_off_or_forgotten_means_every_fit_searches_afresh() -> None:
     _rounds(task, done, 2, clear=True)
     task.close()
     assert [w.warm_start for w in seen] == [None] * 4
+
+
+def test_a_fit_budget_gives_each_window_its_deadline_and_counts_the_fits_cut_short() -> None:
+    """``fit_budget_ms`` (issue 17, a bound on each window's fit): a window's deadline is its
+    completion plus the budget, set when it is handed to the fits; a fit that says it was cut
+    short is counted and said once per reason; without a budget no window has a deadline."""
+    seen: list[tuple[Window, float]] = []
+    lines: list[str] = []
+    done = Collector()
+
+    def fit(w: Window) -> IdentificationResult:
+        seen.append((w, time.monotonic()))
+        return replace(fake_result(w.target_angle, w.moves), cut_short=w.index % 2 == 1)
+
+    task = SysidTask(fit, done, warn=lines.append, windower={'window_size': 10},
+                     fit_budget=0.25)
+    before = time.monotonic()
+    done.expected = 4
+    for h in halves_of(GalvoSimulator(seed=4), [0.3], 40):
+        task.add(h)
+    assert done.event.wait(10)
+    stats = task.stats()
+    task.close()
+    assert len(seen) == 4
+    for w, fitted_at in seen:
+        assert w.deadline is not None
+        assert before + 0.25 <= w.deadline <= fitted_at + 0.25
+    assert stats['windows_cut_short'] == 2
+    assert stats['windows_identified'] == 4
+    cut = [line for line in lines if 'cut short' in line]
+    assert cut
+    assert 'budget of 250 ms' in cut[0]
+    assert 'reported unresolved' in cut[0]
+
+    seen.clear()
+    task = SysidTask(fit, Collector(), warn=lambda _: None, windower={'window_size': 10})
+    for h in halves_of(GalvoSimulator(seed=4), [0.3], 20):
+        task.add(h)
+    task.close()
+    assert seen
+    assert all(w.deadline is None for w, _ in seen)

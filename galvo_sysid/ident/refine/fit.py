@@ -38,6 +38,7 @@ resolves a mode no single window does. Both run the same steps (the tuning is
 from __future__ import annotations
 
 import math
+import time
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -61,6 +62,7 @@ from galvo_sysid.ident.refine.profile import (
     ModeProfile,
     check_linearised,
     profile_modes,
+    unprofiled,
     widen_to_profiles,
 )
 from galvo_sysid.ident.refine.result import RefinedFit
@@ -257,12 +259,22 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
         final_tol = max(1e-8, CHI2_STEP / max(joint.cost(x), 1.0))
         x = polish(x)
     profiles: list[ModeProfile] = []
+    cut = False
     if noisy and n:
-        x, profiles = _profile_and_search(joint, x, band_list, polish,
-                                          search_unplaced=opt.search_unplaced)
+        if _past(opt.deadline):
+            profiles, cut = unprofiled(joint, x, band_list), True
+        else:
+            x, profiles, cut = _profile_and_search(joint, x, band_list, polish,
+                                                   search_unplaced=opt.search_unplaced,
+                                                   deadline=opt.deadline)
     return _result(joint, x, band_list, profiles, resolve_z=opt.resolve_z,
                    adequacy_limit=opt.adequacy_limit if noisy else 0.0, dynamics=dynamics,
-                   starts=len(starts), bound=opt.bound)
+                   starts=len(starts), bound=opt.bound, cut_short=cut)
+
+
+def _past(deadline: float | None) -> bool:
+    """Whether the :func:`time.monotonic` ``deadline`` has passed (None: never)."""
+    return deadline is not None and time.monotonic() > deadline
 
 
 def _starts(joint: JointProblem, initial: ModalModel, x_init: NDArray[np.float64],
@@ -311,17 +323,21 @@ def _starts(joint: JointProblem, initial: ModalModel, x_init: NDArray[np.float64
 
 def _profile_and_search(joint: JointProblem, x: NDArray[np.float64],
                         band_list: Sequence[tuple[float, float]], polish: Any, *,
-                        search_unplaced: bool = True) -> tuple[
-                            NDArray[np.float64], list[ModeProfile]]:
+                        search_unplaced: bool = True, deadline: float | None = None) -> tuple[
+                            NDArray[np.float64], list[ModeProfile], bool]:
     """Profiles of the modes at x; if a mode has a clearly better basin, polish from there
     (kept if the cost is lower) and profile again. Without ``search_unplaced``, a better
     basin that would not place its mode either (its plausible points cover
     :data:`~.profile.PLACED_SHARE` of the band) is not polished: the mode stays where it
     is, unresolved either way (the plausible points around the fit include the better one,
-    so they cover at least as much of the band)."""  # noqa: D205, D209
+    so they cover at least as much of the band). Past the ``deadline`` no basin is
+    polished: the fit is cut short (the last value returned), and a mode whose better basin
+    lies outside its plausible span stays unresolved the same way."""  # noqa: D205, D209
     profiles = profile_modes(joint, x, band_list)
     search = [p.better is not None and (search_unplaced or p.better_coverage < PLACED_SHARE)
               for p in profiles]
+    if any(search) and _past(deadline):
+        return x, profiles, True
     if any(search):
         omega, zeta, lag = joint.unpack(x)
         for i, p in enumerate(profiles):
@@ -331,13 +347,13 @@ def _profile_and_search(joint: JointProblem, x: NDArray[np.float64],
         if joint.cost(x_new) < joint.cost(x):
             x = x_new
             profiles = profile_modes(joint, x, band_list)
-    return x, profiles
+    return x, profiles, False
 
 
 def _result(joint: JointProblem, x: NDArray[np.float64],
             band_list: Sequence[tuple[float, float]], profiles: list[ModeProfile], *,
             resolve_z: float, adequacy_limit: float, dynamics: InputDynamics,
-            starts: int, bound: bool = True) -> RefinedFit:
+            starts: int, bound: bool = True, cut_short: bool = False) -> RefinedFit:
     """The fit at x: covariance, checks, resolved modes."""
     n = joint.n_modes
     omega, zeta, lag = joint.unpack(x)
@@ -401,7 +417,7 @@ def _result(joint: JointProblem, x: NDArray[np.float64],
         unresolved_modes=tuple(i + 1 for i in unresolved),
         residual_to_noise=tuple(sorted(ratios.items())),
         chi2=joint.cost(x), rows=int(sum(prob.yf.size for prob in joint.problems)),
-        crlb_covariance=crlb, noise_models=joint.noise_models)
+        crlb_covariance=crlb, noise_models=joint.noise_models, cut_short=cut_short)
 
 
 def _start_vector(joint: JointProblem, model: ModalModel, lower: NDArray[np.float64],

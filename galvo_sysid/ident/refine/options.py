@@ -9,6 +9,7 @@ them out of a mapping and refuse what it does not know.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields, replace
 from typing import TYPE_CHECKING, Any
 
@@ -87,6 +88,13 @@ class RefineOptions:
             was weighed by the stationary noise model, else a noise model estimated for it,
             about a sixth of a window's fit). The sysid node, whose messages do not carry
             it, leaves it out.
+        deadline: A :func:`time.monotonic` time past which the fit leaves out the stages
+            it can do without (None: none): the weakly excited modes' band profiles and a
+            better basin's second polish. A mode they would have placed is then reported
+            unresolved (its band is its std), and the fit says it was cut short
+            (:attr:`~galvo_sysid.ident.refine.result.RefinedFit.cut_short`). The screening,
+            the polish, the noise model and the covariance always run, so a fit can still
+            end past it (the sysid node's ``fit_budget_ms``).
     """
 
     damping_start: float = DEFAULT_DAMPING_START
@@ -99,6 +107,7 @@ class RefineOptions:
     keep_initial_damping: bool = False
     search_unplaced: bool = True
     bound: bool = True
+    deadline: float | None = None
 
     def __post_init__(self) -> None:
         lo, hi = self.lag_bounds
@@ -116,6 +125,10 @@ class RefineOptions:
             if not isinstance(getattr(self, name), bool):
                 raise ConfigurationError(f'{name} must be true or false, got '
                                          f'{getattr(self, name)!r}')
+        if self.deadline is not None and (isinstance(self.deadline, bool) or not isinstance(
+                self.deadline, (int, float)) or not math.isfinite(self.deadline)):
+            raise ConfigurationError(f'deadline must be a finite time or None, got '
+                                     f'{self.deadline!r}')
         if not (self.resolve_z >= 0 and self.adequacy_limit >= 0):
             raise ConfigurationError('resolve_z and adequacy_limit must be >= 0')
 

@@ -61,6 +61,7 @@ __all__ = [
     'check_linearised',
     'evidence',
     'profile_modes',
+    'unprofiled',
     'widen_to_profiles',
 ]
 
@@ -217,6 +218,27 @@ def profile_modes(joint: JointProblem, x: NDArray[np.float64],
             evidence=float(gain[0]), better=better, omega_span=_span(w_c, w, ok, wide),
             zeta_span=_span(z_c, z, ok, wide), k_span=_span(k, float(k[0]), ok, wide),
             better_coverage=coverage))
+    return out
+
+
+def unprofiled(joint: JointProblem, x: NDArray[np.float64],
+               band_list: Sequence[tuple[float, float]]) -> list[ModeProfile]:
+    """What can be said of each mode at x without :func:`profile_modes`' band scans.
+
+    For a fit out of time (:attr:`~galvo_sysid.ident.refine.options.RefineOptions.deadline`):
+    a mode with :data:`SEARCHED_EVIDENCE` gets the profile :func:`profile_modes` gives it
+    (not scanned there either); any other mode is not placed, its plausible frequencies
+    its whole band (so not resolved, its std its band's): without its scan, a better basin or
+    a flat shoulder cannot be ruled out.
+    """
+    omega, zeta, lag = joint.unpack(x)
+    gains = evidence(joint, omega, zeta, lag)
+    out = []
+    for i, (lo, hi) in enumerate(band_list):
+        w, z = float(omega[i]), float(zeta[i])
+        span = (w, w) if gains[i] >= SEARCHED_EVIDENCE else (float(lo), float(hi))
+        out.append(ModeProfile(evidence=float(gains[i]), better=None, omega_span=span,
+                               zeta_span=(z, z), k_span=(0.0, 0.0)))
     return out
 
 

@@ -65,6 +65,9 @@ class RefinedFit:
         noise_models: Per window, the stationary noise model the fit weighed it with (None
             where it could not be made; empty without prewhitening): a joint fit of the same
             moves can reuse it (``refine_joint(noise_models=...)``).
+        cut_short: The fit passed its deadline and left out stages
+            (:attr:`~galvo_sysid.ident.refine.options.RefineOptions.deadline`): the modes they
+            would have placed are among :attr:`unresolved_modes`.
     """
 
     model: ModalModel
@@ -88,6 +91,7 @@ class RefinedFit:
     rows: int = 0
     crlb_covariance: NDArray[np.float64] | None = field(default=None, repr=False)
     noise_models: tuple[NoiseModel | None, ...] = field(default=(), repr=False)
+    cut_short: bool = False
 
     @property
     def resolved(self) -> tuple[bool, ...]:
