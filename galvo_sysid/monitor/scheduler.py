@@ -215,6 +215,7 @@ class WindowScheduler:
         # window was queued, so a window after it is still to finish and hands it on)
         self._finished: dict[int, FitOutcome | None] = {}
         self._ready: collections.deque[FitOutcome] = collections.deque()
+        self._outstanding = 0  # windows queued or fitting whose outcome is not handed on yet
         self.fitted = 0
         """Windows identified."""
         self.failed = 0
@@ -272,19 +273,24 @@ class WindowScheduler:
                 return [window]
             self._queue.append((self._next_seq, window, time.monotonic()))
             self._next_seq += 1
+            self._outstanding += 1
             while len(self._queue) > self.queue_size:
                 old = self._queue.popleft()
                 if isinstance(old, tuple):
                     dropped.append(old[1])
                     self._finished[old[0]] = None
             self.dropped += len(dropped)
+            self._outstanding -= len(dropped)
             self._cond.notify_all()
         return dropped
 
-    def take(self) -> list[FitOutcome]:
+    def take(self, *, block: bool = False) -> list[FitOutcome]:
         """The outcomes finished since the last call (without ``on_done``), in order if
-        ``ordered``."""  # noqa: D205, D209
+        ``ordered``; with ``block``, wait until there is one, unless no window is queued or
+        being fitted."""  # noqa: D205, D209
         with self._cond:
+            while block and not self._ready and self._outstanding > 0:
+                self._cond.wait()
             out = list(self._ready)
             self._ready.clear()
         return out
@@ -301,6 +307,7 @@ class WindowScheduler:
                 return
             self._closed = True
             if cancel:
+                self._outstanding -= sum(1 for item in self._queue if isinstance(item, tuple))
                 self._queue.clear()
             self._queue.extend([_STOP] * len(self._threads))
             self._cond.notify_all()
@@ -349,8 +356,10 @@ class WindowScheduler:
                 else:
                     due = [o for o in self._finished.values() if o is not None]
                     self._finished.clear()
+                self._outstanding -= len(due)
                 if self._on_done is None:
                     self._ready.extend(due)
+                    self._cond.notify_all()  # a blocking take
                     return
             for outcome in due:
                 try:

@@ -31,23 +31,80 @@ def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def test_same_as_the_node_objects_by_hand(bag: Path) -> None:
-    found = identify_bag(bag)
+@pytest.mark.parametrize('warm', [True, False])
+def test_same_as_the_node_objects_by_hand(bag: Path, warm: bool) -> None:
+    """The sysid node's objects in its order; with the warm start (the default) each refined
+    fit starts from the result of the window two before it (WARM_CHAINS), without it every
+    fit searches afresh."""
+    from dataclasses import replace
+
+    from galvo_sysid.field.offline import WARM_CHAINS
+    from galvo_sysid.ident.warm import WarmStart
+
+    found = identify_bag(bag, warm_start=warm)
     # the sysid node's path, spelled out: MoveWindower -> fit_window -> DriftMonitor
     windower = MoveWindower(window_size=100)
     monitor = DriftMonitor()
     expected = []
+    starts: dict[int, WarmStart | None] = {}
     with BagReader(bag) as reader:
         for half in reader.move_halves():
             assert not isinstance(half, SetAside)
             for window in windower.add(half):
-                result = fit_window(window, method='refined', options={'na': 15, 'nb': 15})
+                chain = window.index % WARM_CHAINS
+                started = replace(window, warm_start=starts.get(chain) if warm else None)
+                result = fit_window(started, method='refined', options={'na': 15, 'nb': 15})
+                starts[chain] = WarmStart.from_result(result)
                 expected.append((window.index, result, monitor.assess(
                     result, window_index=window.index)))
     assert [w.window_index for w in found.windows] == [i for i, _, _ in expected]
+    assert len(expected) == 4
     for w, (_, result, verdict) in zip(found.windows, expected, strict=True):
         assert w.result == result
         assert w.drift == verdict
+    # the first window of each chain afresh, the others from the window two before
+    assert [w.result.warm_started for w in found.windows] == [False, False, warm, warm]
+
+
+def test_the_warm_start_moves_no_estimate_by_more_than_a_fraction_of_its_std(
+        bag: Path) -> None:
+    """Warm or afresh, the windows' estimates agree within half a std (the std within 10 %),
+    and the same modes are resolved: the warm start saves time, not accuracy; and the
+    numbers do not depend on the number of processes."""
+    warm = identify_bag(bag)
+    fresh = identify_bag(bag, warm_start=False)
+    assert identify_bag(bag, jobs=2).to_dict() == warm.to_dict()
+    for a, b in zip(warm.windows, fresh.windows, strict=True):
+        assert a.result.resolved == b.result.resolved
+        est_a, est_b = a.result.model.parameters(), b.result.model.parameters()
+        std_a, std_b = a.result.std_by_name(), b.result.std_by_name()
+        for name, value in est_b.items():
+            mode = 0 if name == 'k0' else int(name.rsplit('_', 1)[-1].lstrip('k'))
+            if mode and not b.result.resolved[mode - 1]:
+                continue
+            assert abs(est_a[name] - value) < 0.5 * std_b[name], name
+            assert std_a[name] == pytest.approx(std_b[name], rel=0.1), name
+
+
+def test_a_window_not_identified_starts_its_chain_afresh(
+        bag: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A window whose fit failed leaves the next window of its chain to search afresh; the
+    other chain goes on from its own results."""
+    import galvo_sysid.monitor.scheduler as scheduler_module
+
+    seen: dict[int, bool] = {}
+    real = scheduler_module.fit_window
+
+    def fit(window: Window, **kwargs: Any) -> IdentificationResult:
+        seen[window.index] = window.warm_start is not None
+        if window.index == 0:
+            raise IdentificationError('refined fit failed: made to fail')
+        return real(window, **kwargs)
+
+    monkeypatch.setattr(scheduler_module, 'fit_window', fit)
+    found = identify_bag(bag)
+    assert seen == {0: False, 1: False, 2: False, 3: True}
+    assert [w.window_index for w in found.windows] == [1, 2, 3]
 
 
 def _bag_windows(bag: Path) -> list:

@@ -256,3 +256,23 @@ def test_a_windows_deadline_reaches_the_refined_fit_and_no_other() -> None:
     paper = node_fit(method='paper-A', model=None, na=15, nb=15)
     assert paper(past) == paper(win)
     assert fit_window(replace(win, deadline=time.monotonic() + 600)) == fit_window(win)
+
+
+def test_a_blocking_take_waits_for_an_outcome_and_not_when_nothing_is_left() -> None:
+    """``take(block=True)`` (``identify_bag``'s warm chains wait on it): it returns as soon as
+    an outcome is there, in order, and at once with nothing when no window is queued or being
+    fitted (a dropped window is not waited for)."""
+    with WindowScheduler(slow_fit, queue_size=1, ordered=True) as fitter:
+        assert fitter.take(block=True) == []
+        start = time.monotonic()
+        fitter.submit(window(0))
+        (first,) = fitter.take(block=True)
+        assert first.window.index == 0
+        assert time.monotonic() - start >= 0.04  # slow_fit takes 50 ms
+        fitter.submit(window(1))
+        dropped = fitter.submit(window(2))  # window 1 still queued, or already fitting
+        got = [o.window.index for o in fitter.take(block=True)]
+        while len(got) < 2 - len(dropped):
+            got += [o.window.index for o in fitter.take(block=True)]
+        assert got == [i for i in (1, 2) if i not in [w.index for w in dropped]]
+        assert fitter.take(block=True) == []
