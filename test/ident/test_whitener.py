@@ -213,3 +213,48 @@ def test_powers_are_the_exponentials(n: int) -> None:
     want = np.exp(p[:, None] * TAU * np.arange(n))
     assert e.shape == (w_c.size, n)
     np.testing.assert_allclose(e, want, rtol=0, atol=4 * n * np.finfo(float).eps + 1e-300)
+
+
+@pytest.mark.parametrize('rows', [30, 300])
+def test_the_transposed_map_is_the_matrix_transposed(problem: WindowProblem, rows: int) -> None:
+    """``Whitener.transposed`` (the covariance's shortcut) is ``W^T`` of the map ``apply``
+    is: rows fewer than the head's order too."""
+    w = problem.whiten
+    assert w is not None
+    cols = np.random.default_rng(rows).standard_normal((rows, 4))
+    y = np.random.default_rng(rows + 1).standard_normal(rows)
+    np.testing.assert_allclose(w.matrix(rows) @ y, w.apply(y), rtol=0, atol=1e-12 * w.order)
+    want = w.matrix(rows).T @ cols
+    np.testing.assert_allclose(w.transposed(cols), want, rtol=0,
+                               atol=1e-13 * float(np.max(np.abs(want))))
+    np.testing.assert_array_equal(WindowProblem.whitening_transposed(problem, cols),
+                                  w.transposed(cols))
+
+
+@pytest.mark.parametrize(('delay', 'fraction', 'lag'), [(1, 0.0, LAG), (2, 0.3, 0.0),
+                                                        (1, 0.7, 2.5 * LAG)])
+def test_the_deviations_times_columns_need_no_deviations(delay: int, fraction: float,
+                                                         lag: float) -> None:
+    """``deviations_times`` by correlation (no move convolved) gives the deviations' product
+    with the columns, for any delay, dead time and lag; and from the kept deviations once
+    they are made."""
+    from galvo_sysid.model import REFERENCE_MODEL
+
+    cur, enc = simulate_window(0.9, moves=20, seed=1)
+    prob = WindowProblem(cur, enc - enc[:, :1], sample_period=TAU, delay=delay,
+                         fraction=fraction, n_modes=3)
+    rng = np.random.default_rng(delay)
+    omega = np.array(REFERENCE_MODEL.natural_frequencies)
+    zeta = np.array(REFERENCE_MODEL.damping_ratios)
+    coef = rng.standard_normal(prob.n_linear)
+    coef[0] = REFERENCE_MODEL.k0
+    cols = rng.standard_normal((prob.k.size, 5))
+    got = prob.deviations_times(omega, zeta, lag, coef, cols)
+    assert prob._deviations is None  # not made on the way
+    want = prob.deviations(omega, zeta, lag, coef) @ cols
+    scale = float(np.max(np.abs(want)))
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(prob.deviations_times(omega, zeta, lag, coef, cols), want,
+                               rtol=0, atol=1e-14 * scale)
+    assert not np.allclose(prob.deviations_times(omega, zeta, 2 * lag + LAG, coef, cols), want,
+                           rtol=0, atol=1e-6 * scale)

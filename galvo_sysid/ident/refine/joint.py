@@ -349,13 +349,15 @@ def covariance(joint: JointProblem, x: NDArray[np.float64],
             res2 += float(resid @ resid)
             rows += resid.size
             continue
-        raw = prob.deviations(omega, zeta, lag, coef)
-        dev = prob.apply_whitening(raw, axis=1)
-        g = wt * (dev @ jt)
-        m = dev.shape[0]
+        fisher = bound and not joint.stationary
+        raw = prob.deviations(omega, zeta, lag, coef) if fisher else None
+        # the whitened deviations' products with jt: the deviations times W^T jt (no
+        # whitening of every move; nor, where no one made them, the deviations themselves)
+        g = wt * prob.deviations_times(omega, zeta, lag, coef, prob.whitening_transposed(jt))
+        m = g.shape[0]
         b_w = g.T @ g / (m * (m - 1))
         b_mat = b_w if b_mat is None else b_mat + b_w
-        if bound and not joint.stationary:
+        if raw is not None:
             info.append(_fisher(prob, raw, omega, zeta, lag, coef, phys, joint, a_w))
     assert a_mat is not None
     a_inv = _inverse(a_mat)

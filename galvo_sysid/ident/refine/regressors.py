@@ -34,6 +34,7 @@ __all__ = [
     'modal_regressors',
     'powers',
     'pulse_numerator',
+    'rigid_taps',
     'second_difference',
 ]
 
@@ -84,6 +85,18 @@ def powers(omega: Floats, zeta: Floats, n: int,
     return p, e
 
 
+def rigid_taps(*, sample_period: float, delay: int, fraction: float) -> tuple[
+        NDArray[np.float64], NDArray[np.float64]]:
+    """FIR taps of the rigid body's double and single integrator behind the pure delay
+    (``delay`` samples and ``fraction`` of one), filtered by (1 - q^-1)^2, on the input less
+    its level before the record (:attr:`Regressors.rigid_double`, ``rigid_single``)."""  # noqa: D205, D209
+    f, t = fraction, sample_period
+    pad = [0.0] * delay
+    double = [*pad, 0.0, t * t * (1 - f) ** 2 / 2, t * t * (0.5 + f - f * f), t * t * f * f / 2]
+    single = [*pad, 0.0, t * (1 - f), t * (2 * f - 1), -t * f]
+    return np.array(double, dtype=float), np.array(single, dtype=float)
+
+
 class Regressors:
     """Filtered exact-ZOH responses of the unit modes to a fixed input (records (..., N)).
 
@@ -113,12 +126,10 @@ class Regressors:
         self._lag_cache: tuple[float, NDArray[np.float64]] | None = None
         self._taps_cache: tuple[NDArray[np.float64], NDArray[np.complex128]] | None = None
         # Fixed FIR parts of the rigid body (double and single integrator, see rigid()).
-        f = fraction
-        t = sample_period
-        pad = [0.0] * delay
-        self.rigid_double = fir([*pad, 0.0, t * t * (1 - f) ** 2 / 2,
-                                  t * t * (0.5 + f - f * f), t * t * f * f / 2], u0)
-        self.rigid_single = fir([*pad, 0.0, t * (1 - f), t * (2 * f - 1), -t * f], u0)
+        double, single = rigid_taps(sample_period=sample_period, delay=delay,
+                                    fraction=fraction)
+        self.rigid_double = fir(double, u0)
+        self.rigid_single = fir(single, u0)
 
     def transform(self, h: NDArray[np.float64]) -> NDArray[np.complex128]:
         """The transform of impulse responses h (m, N) that :meth:`convolve` takes: the same

@@ -132,6 +132,29 @@ class Whitener:
         out[:p] = lower_times(self.head[:p, :p], moved[:p].reshape(p, -1)).reshape((p, *rest))
         return np.moveaxis(out, 0, axis)
 
+    def transposed(self, arr: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``W^T arr`` for the map W :meth:`apply` is along the rows of ``arr`` (rows, k).
+
+        Whitened records' products with columns, ``(W y)^T c = y^T (W^T c)``, without
+        whitening the records: the columns are mapped instead (a few columns for many
+        records). The FIR part's transpose is a correlation with the filter (by FFT), the
+        head's its transpose.
+        """
+        v = np.asarray(arr, dtype=float)
+        n = v.shape[0]
+        p = min(self.order, n)
+        size = _fft_size(n + self.filter.size - 1)
+        spectrum = self._spectra.get(size)
+        if spectrum is None:
+            spectrum = self._spectra[size] = sp_fft.rfft(self.filter, size)
+        tail = v.copy()
+        tail[:p] = 0.0  # the head's rows are not the filter's
+        shape = (-1,) + (1,) * (v.ndim - 1)
+        out = sp_fft.irfft(np.conj(spectrum).reshape(shape) * sp_fft.rfft(tail, size, axis=0),
+                           size, axis=0)[:n]
+        out[:p] += self.head[:p, :p].T @ v[:p]
+        return np.asarray(out, dtype=np.float64)
+
 
 _TRMM_COLUMNS = 48  # from this many columns on a triangular product beats a full one
 

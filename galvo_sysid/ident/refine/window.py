@@ -19,6 +19,7 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy import fft as sp_fft
 from scipy.linalg import qr
 
 from galvo_sysid.errors import InvalidDataError
@@ -27,6 +28,7 @@ from galvo_sysid.ident.refine.regressors import (
     Regressors,
     free_responses,
     powers,
+    rigid_taps,
     second_difference,
 )
 from galvo_sysid.ident.refine.whitener import Whitener, lower_times
@@ -156,6 +158,13 @@ class WindowProblem:
         self.yf = self.apply_whitening(self.yf_raw)
         self._columns_cache: dict[bool, tuple[bytes, NDArray[np.float64]]] = {}
         self._derivatives: tuple[bytes, NDArray[np.float64]] | None = None  # the last one
+
+    def whitening_transposed(self, arr: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The whitening map's transpose on columns ``arr`` (rows, k): ``(W y) . c`` is
+        ``y . W^T c`` (:meth:`Whitener.transposed`; ``arr`` without a whitener)."""  # noqa: D205, D209
+        if self.whiten is None:
+            return arr
+        return self.whiten.transposed(arr)
 
     def apply_whitening(self, arr: NDArray[np.float64], axis: int = 0) -> NDArray[np.float64]:
         """Whiten ``arr`` along the row ``axis`` (an invertible lower-triangular map, so no row
@@ -388,6 +397,49 @@ class WindowProblem:
         dev.flags.writeable = False
         self._deviations = (key, dev)
         return dev
+
+    def deviations_times(self, omega: NDArray[np.float64], zeta: NDArray[np.float64],
+                         lag: float, coef: NDArray[np.float64],
+                         columns: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``deviations(...) @ columns`` (columns (rows, k)): (M, k), the deviations unmade.
+
+        From the kept deviations if they are these; else without making them (an FFT of each
+        move's current and a convolution per move): a move's forced response is a
+        convolution of its filtered current with the model's impulse response h, so its
+        product with a column c is the current's product with the correlation of c with h,
+        one per column (and the rigid body's FIR likewise). The joint fit's covariance, the
+        only user of a window's deviations there, saves most of their cost. The same numbers
+        to rounding.
+        """
+        key = b''.join(np.asarray(v, dtype=float).tobytes() for v in (omega, zeta, [lag], coef))
+        if self._deviations is not None and self._deviations[0] == key:
+            return np.asarray(self._deviations[1] @ columns, dtype=np.float64)
+        n, first, size = self.n_modes, self.first, self.n
+        if self._moves_enc is None:
+            self._moves_enc = second_difference(self.enc - self.enc.mean(axis=0))
+        padded = np.zeros((size, columns.shape[1]))
+        padded[first:] = columns
+        regs = self.regs  # the impulse responses depend on the sample period and delay only
+        h_lag = regs.lag_impulse(lag)
+        h = coef[1: 1 + n] @ regs.mode_impulses(omega, zeta, lag, h_lag=h_lag) \
+            + coef[0] * lag * h_lag
+        nfft = regs.nfft
+        corr = sp_fft.irfft(np.conj(sp_fft.rfft(h, nfft))[:, None]
+                            * sp_fft.rfft(padded, nfft, axis=0), nfft, axis=0)[:size]
+        double, single = rigid_taps(sample_period=self.t, delay=regs.delay,
+                                    fraction=regs.fraction)
+        taps = coef[0] * (double - lag * single)
+        fir_corr = np.zeros_like(padded)  # sum_i taps_i c[j + i]
+        for i, tap in enumerate(taps):
+            if tap != 0 and i < size:
+                fir_corr[: size - i] += tap * padded[i:]
+        # the moves' inputs as the moves' Regressors take them (see _moves_regressors)
+        dev_u = self.cur - self.cur.mean(axis=0)
+        pre = self.cur[:, -1:] - self.cur[:, -1].mean()
+        d1 = np.diff(dev_u, axis=-1, prepend=pre)
+        u_f = np.diff(d1, axis=-1, prepend=0.0 * d1[:, :1])
+        return np.asarray(self._moves_enc[:, first:] @ columns - u_f @ corr
+                          - (dev_u - pre) @ fir_corr, dtype=np.float64)
 
     def noise(self, omega: NDArray[np.float64], zeta: NDArray[np.float64], lag: float,
               coef: NDArray[np.float64]) -> NDArray[np.float64]:
