@@ -8,13 +8,18 @@ angle: what the identification averages. The sysid node and ``galvo-sysid identi
 both use it, so both give the same windows.
 
 Everything is decided from message stamps, never from arrival time. The windower keeps a data
-clock (:mod:`~galvo_sysid.monitor.clock`), the newest stamp of the halves it took. A half is
-unpaired when the clock is ``pair_timeout`` past its own stamp. A half stamped more than
-``time_jump`` away from the clock is held apart: on its own (one stale or future stamp) it is
-set aside once :data:`CONFIRM` halves in time with the clock have come; when instead
-:data:`CONFIRM` halves in a row agree on its new time (a bag replay looping back, a publisher
-restarted, a pause), the clock moves there and the held halves are used; a move back in time
-then restarts the buffers, so that old and new moves never mix.
+clock per signal (:mod:`~galvo_sysid.monitor.clock`): the newest stamp of the current halves
+it took, and of the encoder halves. A half is unpaired when its partner's clock is
+``pair_timeout`` past its own stamp (that topic has moved on without it); where the partner's
+topic lags behind (its messages held up, e.g. behind huge ones on the same topic) or has not
+come at all, the half waits until its own topic is :data:`LATE_TOPIC` + 1 pair timeouts past
+it. A half stamped more than
+``time_jump`` away from its signal's clock is held apart: on its own (one stale or future
+stamp) it is set aside once :data:`CONFIRM` halves of its signal in time with the clock have
+come; when instead :data:`CONFIRM` halves in a row agree on its new time (a bag replay looping
+back, a publisher restarted, a pause), that clock moves there and the held halves are used; a
+move back in time then restarts the buffers, so that old and new moves never mix. One topic
+arriving late is not a jump: each topic's stamps are judged against that topic's own.
 
 A window holds moves of one signed target angle, sample period and record length: a move of
 another length (a short first move, say) starts a window of its own. Moves that cannot be
@@ -42,7 +47,7 @@ from galvo_sysid.monitor.checks import (
     record_problem,
 )
 from galvo_sysid.monitor.clock import DataClock
-from galvo_sysid.monitor.halves import HalfTable
+from galvo_sysid.monitor.halves import SIGNALS, HalfTable
 from galvo_sysid.monitor.parameters import defaults
 from galvo_sysid.monitor.rejections import Rejection
 from galvo_sysid.monitor.windows import WindowStore, window_key
@@ -51,7 +56,7 @@ if TYPE_CHECKING:
     from galvo_sysid.monitor.moves import MoveHalf, Window
     from galvo_sysid.monitor.windows import OpenWindow
 
-__all__ = ['CONFIRM', 'RECENT_ANGLES', 'MoveWindower']
+__all__ = ['CONFIRM', 'LATE_TOPIC', 'RECENT_ANGLES', 'MoveWindower']
 
 _DEFAULTS = defaults('sysid')
 """The sysid node's parameter defaults: the windower's defaults (one source)."""
@@ -59,6 +64,11 @@ _DEFAULTS = defaults('sysid')
 CONFIRM = 8
 """Halves that decide about a stamp held apart: this many in a row agreeing with it move the
 data clock there; this many in time with the clock set it aside."""
+
+LATE_TOPIC = 10.0
+"""Pair timeouts a half waits beyond one, by its own topic's clock, for a partner whose topic
+lags behind or has not come: the sysid node flooded with 40 MB messages received one topic's
+good halves up to 2.7 s late (``benchmarks/sysid_hostile_input.py``)."""
 
 RECENT_ANGLES = 4096
 """Keys of evicted windows remembered (a key seen again opens a window that counts as
@@ -79,10 +89,11 @@ class MoveWindower:
             windows of their own).
         max_samples: Largest accepted record (an oversized array is rejected).
         min_samples: Smallest accepted record.
-        pair_timeout: A half whose partner has not arrived when the data clock is this much
-            later [s] is rejected as unpaired.
-        time_jump: A half stamped this much [s] before or after the data clock is held apart
-            (see the module docs).
+        pair_timeout: A half whose partner has not arrived when the partner's data clock is
+            this much later [s] is rejected as unpaired (see the module docs for a partner's
+            topic that lags or never came).
+        time_jump: A half stamped this much [s] before or after its signal's data clock is
+            held apart (see the module docs).
         angle_resolution: Target angles closer than this [deg] share a window; smaller
             magnitudes count as a zero angle.
         max_pending: Most unpaired halves held.
@@ -133,7 +144,8 @@ class MoveWindower:
         self._waiting_budget = budget // 4
         self._halves = HalfTable(pair_timeout=self.pair_timeout,
                                  done_limit=max(4 * self.max_pending, 4 * self.window_size))
-        self._clock = DataClock(time_jump=self.time_jump, confirm=CONFIRM)
+        self._clocks = {signal: DataClock(time_jump=self.time_jump, confirm=CONFIRM)
+                        for signal in SIGNALS}
         self._open = WindowStore(window_size=self.window_size, max_windows=self.max_windows,
                                  budget=budget - budget // 4,
                                  window_timeout=self.window_timeout, recent=RECENT_ANGLES)
@@ -170,7 +182,7 @@ class MoveWindower:
     @property
     def held(self) -> int:
         """Halves held apart for their stamp."""
-        return len(self._clock.held)
+        return sum(len(c.held) for c in self._clocks.values())
 
     @property
     def open_windows(self) -> int:
@@ -185,7 +197,7 @@ class MoveWindower:
     @property
     def buffered_bytes(self) -> int:
         """Bytes of samples held: open windows, unpaired halves and halves held apart."""
-        return self._open.nbytes + self._halves.nbytes + self._clock.held_bytes
+        return self._open.nbytes + self._halves.nbytes + self._held_bytes()
 
     @property
     def next_index(self) -> int:
@@ -194,8 +206,11 @@ class MoveWindower:
 
     @property
     def newest_stamp(self) -> float:
-        """The data clock: newest stamp taken [s] (-inf before the first half)."""
-        return self._clock.now
+        """The newest stamp taken, of either signal [s] (-inf before the first half)."""
+        return max(c.now for c in self._clocks.values())
+
+    def _held_bytes(self) -> int:
+        return sum(c.held_bytes for c in self._clocks.values())
 
     def fill_levels(self) -> dict[float, int]:
         """Moves buffered in open windows, by signed target angle."""
@@ -213,11 +228,12 @@ class MoveWindower:
         if problem is not None:
             self._reject_half(half, problem)
             return []
-        set_aside, hold = self._clock.judge(half.stamp)
+        clock = self._clocks[half.signal]
+        set_aside, hold = clock.judge(half.stamp)
         if set_aside:
-            self._set_aside_held()
+            self._set_aside_held(clock)
         if hold:
-            return self._hold(half)
+            return self._hold(half, clock)
         return self._take(half)
 
     def refuse(self, half: MoveHalf, reason: str) -> None:
@@ -226,21 +242,33 @@ class MoveWindower:
         self.refused_halves += 1
         self._reject_half(half, reason)
 
-    def expire(self, now: float) -> None:
-        """Reject the unpaired halves whose stamp is more than ``pair_timeout`` before ``now``.
+    def expire(self, now: float | None = None) -> None:
+        """Reject the unpaired halves whose partner can no longer come.
 
-        Halves are examined oldest first and the scan stops at the first one still in time,
-        so a half that arrived out of stamp order may wait a little longer.
+        Without ``now``, by the data clocks (see the module docs): a half whose partner's
+        clock is ``pair_timeout`` past its stamp, or its own :data:`LATE_TOPIC` + 1 pair
+        timeouts past it (the partner's topic lags or has not come). With ``now`` (no input
+        for a while: the clocks taken on by the wall clock), every half stamped more than
+        ``pair_timeout`` before it.
+
+        Each signal's halves are examined oldest first and the scan stops at the first one
+        still in time, so a half that arrived out of stamp order may wait a little longer.
         """
-        limit = now - self.pair_timeout
-        while self._halves:
-            h = self._halves.oldest()
-            if h.stamp >= limit:
-                break
-            self._halves.drop(h.move_id)
-            self._reject_one(h.move_id, h.target_angle, h.stamp,
-                             f'unpaired after {self.pair_timeout:g} s: no '
-                             f'{_other(h.signal)} record')
+        for signal in SIGNALS:
+            if now is not None:
+                ref = now
+            else:
+                ref = max(self._clocks[_other(signal)].now,
+                          self._clocks[signal].now - LATE_TOPIC * self.pair_timeout)
+            limit = ref - self.pair_timeout
+            while self._halves.waiting_for(signal):
+                h = self._halves.oldest(signal)
+                if h.stamp >= limit:
+                    break
+                self._halves.drop(h.move_id)
+                self._reject_one(h.move_id, h.target_angle, h.stamp,
+                                 f'unpaired after {self.pair_timeout:g} s: no '
+                                 f'{_other(h.signal)} record')
 
     def flush(self, *, min_moves: int = 2) -> list[Window]:
         """Hand out the open windows holding at least ``min_moves`` moves (end of a bag).
@@ -250,10 +278,12 @@ class MoveWindower:
         fewer moves and all unpaired halves are rejected; the windower is empty afterwards.
         """
         out: list[Window] = []
-        if self._clock.uncontradicted_ahead():
-            for h in self._clock.release():
-                out.extend(self._take(h))
-        self._set_aside_held()
+        for clock in self._clocks.values():
+            if clock.uncontradicted_ahead():
+                for h in clock.release():
+                    out.extend(self._take(h))
+        for clock in self._clocks.values():
+            self._set_aside_held(clock)
         for h in self._halves.waiting():
             self._reject_one(h.move_id, h.target_angle, h.stamp,
                              f'unpaired at end of data: no {_other(h.signal)} record')
@@ -268,49 +298,64 @@ class MoveWindower:
 
     def reset(self, *, reason: str = 'reset') -> None:
         """Drop every buffered half and move (rejecting them with ``reason``)."""
-        for h in self._clock.release():
-            self._reject_half(h, f'discarded: {reason}')
+        for clock in self._clocks.values():
+            for h in clock.release():
+                self._reject_half(h, f'discarded: {reason}')
         for h in self._halves.waiting():
             self._reject_one(h.move_id, h.target_angle, h.stamp, f'discarded: {reason}')
         for w in self._open.clear():
             self._reject_window(w, f'discarded: {reason}')
         self._halves.clear_waiting()
         self._halves.clear_done()
-        self._clock.now = -math.inf
+        for clock in self._clocks.values():
+            clock.now = -math.inf
         self.resets += 1
 
     # -- stamps --------------------------------------------------------------------------
-    def _hold(self, half: MoveHalf) -> list[Window]:
+    def _hold(self, half: MoveHalf, clock: DataClock) -> list[Window]:
         """Hold a half apart for its stamp; use the held halves once CONFIRM agree in a row."""
-        if self._clock.hold(half):
-            return self._confirm()
+        if clock.hold(half):
+            return self._confirm(clock)
         self._evict_held()
         return []
 
-    def _confirm(self) -> list[Window]:
-        """The held halves agree on a new time: move the clock there and use them."""
-        jump = self._clock.held[0].stamp - self._clock.now
-        held = self._clock.release()
+    def _confirm(self, clock: DataClock) -> list[Window]:
+        """The held halves agree on a new time: move the clock there and use them.
+
+        A move back in time restarts the buffers; the other signal's halves held apart
+        meanwhile (the same loop, not yet confirmed on that topic) are judged again after
+        the restart, with its clock restarted too.
+        """
+        jump = clock.held[0].stamp - clock.now
+        held = clock.release()
+        again: list[MoveHalf] = []
         if jump < 0:  # a replay looping, a publisher restarted: old and new moves never mix
+            for other in self._clocks.values():
+                if other is not clock:
+                    again.extend(other.release())
             self.reset(reason=f'time jumped back {-jump:.3g} s')
         out: list[Window] = []
         for h in held:
             out.extend(self._take(h))
+        for h in again:
+            out.extend(self.add(h))
         return out
 
-    def _set_aside_held(self) -> None:
-        clock = self._clock.now
-        for h in self._clock.release():
-            where = 'behind' if h.stamp < clock else 'ahead of'
+    def _set_aside_held(self, clock: DataClock) -> None:
+        now = clock.now
+        for h in clock.release():
+            where = 'behind' if h.stamp < now else 'ahead of'
             self.stale_halves += 1
             self._reject_half(h, f'stamp more than {self.time_jump:g} s {where} the data clock '
                                  f'(set aside alone)')
 
     def _evict_held(self) -> None:
         """Within the waiting share of the byte budget: held halves set aside, oldest first."""
-        while (self._clock.held and
-               self._halves.nbytes + self._clock.held_bytes > self._waiting_budget):
-            h = self._clock.pop_oldest()
+        while (self.held and
+               self._halves.nbytes + self._held_bytes() > self._waiting_budget):
+            clock = min((c for c in self._clocks.values() if c.held),
+                        key=lambda c: c.held[0].stamp)
+            h = clock.pop_oldest()
             self.halves_evicted += 1
             self._reject_half(h, f'held for its stamp: evicted, more than '
                                  f'{self._waiting_budget} bytes of halves waiting')
@@ -319,9 +364,9 @@ class MoveWindower:
     def _take(self, half: MoveHalf) -> list[Window]:
         """Use a half whose stamp is in time: pair it, window the move."""
         stamp = half.stamp
-        self._clock.advance(stamp)
-        self.expire(self._clock.now)
-        for w, reason in self._open.expire(self._clock.now):
+        self._clocks[half.signal].advance(stamp)
+        self.expire()
+        for w, reason in self._open.expire(self.newest_stamp):
             self._reject_window(w, reason)
             self.windows_expired += 1
         mid = half.move_id
@@ -384,7 +429,7 @@ class MoveWindower:
             return
         partner = self._halves.get(mid)
         stamp = half.stamp if math.isfinite(half.stamp) else (
-            partner.stamp if partner is not None else self._clock.now)
+            partner.stamp if partner is not None else self.newest_stamp)
         done = self._halves.recent(mid, stamp)
         if done is not None:
             if done:  # a broken repeat of a move already used
@@ -417,7 +462,7 @@ class MoveWindower:
         self.moves_accepted -= len(w.move_ids)
 
     def _mark_done(self, move_id: int, stamp: float, *, used: bool) -> None:
-        self._halves.mark(move_id, stamp if math.isfinite(stamp) else self._clock.now,
+        self._halves.mark(move_id, stamp if math.isfinite(stamp) else self.newest_stamp,
                           used=used)
 
     def _add_move(self, current: MoveHalf, encoder: MoveHalf) -> list[Window]:

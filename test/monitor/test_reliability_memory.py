@@ -28,7 +28,7 @@ from galvo_sysid.errors import InvalidDataError
 from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fields
 from galvo_sysid.model import REFERENCE_MODEL
 from galvo_sysid.monitor.moves import MoveHalf
-from galvo_sysid.monitor.pairing import MoveWindower
+from galvo_sysid.monitor.pairing import LATE_TOPIC, MoveWindower
 from galvo_sysid.monitor.scheduler import FitOutcome
 from galvo_sysid.monitor.tasks import SysidTask
 from galvo_sysid.sim.simulator import GalvoSimulator
@@ -124,8 +124,9 @@ def test_encoder_half_never_sent(stamps: str) -> None:
         for r in w.pop_rejections():
             said[r.move_id] = said.get(r.move_id, 0) + 1
             reasons.add(r.reason.split(' ')[0] + ' ' + r.reason.split(' ')[1])
-    if stamps == 'advancing':  # stamps say the partner is late: set aside after pair_timeout
-        assert w.pending <= math.ceil(w.pair_timeout / MOVE_TIME) + 1
+    if stamps == 'advancing':  # stamps say the partner is late: set aside after LATE_TOPIC + 1
+        # pair timeouts by the current topic's own clock (the encoder topic has not come)
+        assert w.pending <= math.ceil((LATE_TOPIC + 1) * w.pair_timeout / MOVE_TIME) + 1
         assert reasons == {'unpaired after'}
     else:  # no time passes by the stamps: the max_pending cap evicts the oldest
         assert w.pending == w.max_pending
