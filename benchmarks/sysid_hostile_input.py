@@ -328,6 +328,8 @@ def report_common(sc: Scenario, r: dict[str, Any], bounds: dict[str, Any]
         ('resets (stamps jumped back) / stale halves / moves in "unpaired" log lines',
          f'{sc.counters().get("resets", -1)} / {sc.counters().get("halves_stale", -1)} / '
          f'{unpaired(sc.proc.text())} (a move can be counted for each half)'),
+        ('most one topic came late behind the other (topic_lag_ms_max)',
+         f'{sc.counters().get("topic_lag_ms_max", -1)} ms (each topic judged by its own clock)'),
         ('peak buffered_bytes / open_windows (diagnostics)',
          f'{sc.peak("buffered_bytes")} / {sc.peak("open_windows")}'),
         ('settling after the flood', f'{r["settle"]:.1f} s'),

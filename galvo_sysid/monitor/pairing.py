@@ -172,6 +172,9 @@ class MoveWindower:
         """Open windows set aside to keep within ``max_windows`` or the byte budget."""
         self.windows_expired = 0
         """Open windows set aside for not completing within ``window_timeout``."""
+        self.topic_lag = 0.0
+        """The most a half taken was stamped behind the other topic's clock [s]: how late one
+        topic came (behind huge messages, say), which its own clock lets pass."""
 
     # -- state -------------------------------------------------------------------------
     @property
@@ -365,6 +368,9 @@ class MoveWindower:
         """Use a half whose stamp is in time: pair it, window the move."""
         stamp = half.stamp
         self._clocks[half.signal].advance(stamp)
+        lag = self._clocks[_other(half.signal)].now - stamp
+        if lag > self.topic_lag:
+            self.topic_lag = lag
         self.expire()
         for w, reason in self._open.expire(self.newest_stamp):
             self._reject_window(w, reason)

@@ -255,7 +255,8 @@ class SysidTask:
         aside for their stamp, waiting halves evicted), windows identified (and of those,
         by a fit started from the previous window of their angle, and by a fit cut short at
         its budget) / failed / not matching the model / dropped, open windows evicted /
-        expired, resets, queue, bytes of samples buffered."""  # noqa: D205, D209
+        expired, resets, queue, bytes of samples buffered, the most one topic came late
+        behind the other [ms]."""  # noqa: D205, D209
         w = self.windower
         f = self.fitter
         return {'halves_received': self.halves_received, 'moves_accepted': w.moves_accepted,
@@ -271,7 +272,8 @@ class SysidTask:
                 'windows_mismatched': f.mismatched, 'windows_dropped': f.dropped,
                 'windows_waiting': f.waiting, 'windows_evicted': w.windows_evicted,
                 'windows_expired': w.windows_expired, 'resets': w.resets,
-                'buffered_bytes': w.buffered_bytes, **self.latency_ms()}
+                'buffered_bytes': w.buffered_bytes,
+                'topic_lag_ms_max': round(1e3 * w.topic_lag), **self.latency_ms()}
 
     def latency_ms(self) -> dict[str, int]:
         """Latency from a window's completion to the end of its fit [ms]: median, 99th

@@ -217,6 +217,10 @@ def test_a_topic_arriving_seconds_late_loses_no_move() -> None:
     assert w.pop_rejections() == []
     assert (w.resets, w.stale_halves, w.pending, w.held) == (0, 0, 0, 0)
     assert [x.move_ids for x in windows] == [tuple(range(k, k + 10)) for k in range(0, 200, 10)]
+    assert w.topic_lag == pytest.approx(0.05 * lag)  # how late the encoder topic came, said
+    in_step = MoveWindower(window_size=10)
+    feed(in_step, [h for m in moves for h in m])
+    assert in_step.topic_lag == 0.0
 
 
 def test_a_topic_that_stops_leaves_its_partners_unpaired_after_late_topic() -> None:
