@@ -68,7 +68,7 @@ data clock there; this many in time with the clock set it aside."""
 LATE_TOPIC = 10.0
 """Pair timeouts a half waits beyond one, by its own topic's clock, for a partner whose topic
 lags behind or has not come: the sysid node flooded with 40 MB messages received one topic's
-good halves up to 2.7 s late (``benchmarks/sysid_hostile_input.py``)."""
+good halves up to 3.7 s late (``benchmarks/sysid_hostile_input.py``, ``topic_lag_ms_max``)."""
 
 RECENT_ANGLES = 4096
 """Keys of evicted windows remembered (a key seen again opens a window that counts as
