@@ -62,8 +62,9 @@ _DEFAULTS = defaults('sysid')
 """The sysid node's parameter defaults: the windower's defaults (one source)."""
 
 CONFIRM = 8
-"""Halves that decide about a stamp held apart: this many in a row agreeing with it move the
-data clock there; this many in time with the clock set it aside."""
+"""Halves of one topic that decide about a stamp of that topic held apart: this many in a row
+agreeing with it move the topic's data clock there; this many in time with the clock set it
+aside."""
 
 LATE_TOPIC = 10.0
 """Pair timeouts a half waits beyond one, by its own topic's clock, for a partner whose topic

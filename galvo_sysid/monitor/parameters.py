@@ -280,11 +280,12 @@ _WINDOWER_SPECS = (
     ParamSpec('samples', 0, 'expected samples per record (0: any; moves of each length '
               'fill windows of their own)', 0, 10_000_000),
     ParamSpec('max_samples', 65536, 'largest record accepted [samples]', 32, 10_000_000),
-    ParamSpec('pair_timeout', 1.0, 'a half still unpaired this long (by stamps) is set aside '
-              '[s]', 0.0, 3600.0, exclusive_low=True),
-    ParamSpec('time_jump', 1.0, 'a stamp this far from the data clock is held apart: set '
-              'aside alone, unless the next halves confirm the new time (a loop back then '
-              'restarts the buffers) [s]', 0.0, 1e6, exclusive_low=True),
+    ParamSpec('pair_timeout', 1.0, "a half is set aside as unpaired when its partner's topic "
+              'is this far past it by stamps (or its own topic 11 times this far, where the '
+              "partner's topic lags or has not come) [s]", 0.0, 3600.0, exclusive_low=True),
+    ParamSpec('time_jump', 1.0, "a stamp this far from its topic's data clock is held apart: "
+              'set aside alone, unless the next halves of that topic confirm the new time (a '
+              'loop back then restarts the buffers) [s]', 0.0, 1e6, exclusive_low=True),
     ParamSpec('max_pending', 2000, 'most unpaired halves held', 1, 10_000_000),
     ParamSpec('max_windows', 64, 'most open windows held (one per target angle, sample period '
               'and record length)', 1, 100_000),
