@@ -638,3 +638,27 @@ def test_counters_start_at_zero_and_count_every_rejection_once() -> None:
     assert (w.windows_evicted, w.moves_accepted) == (1, 2)
     said += new
     assert w.moves_rejected == len(said) == 6
+
+
+def test_flush_uses_halves_held_ahead_and_sets_aside_contradicted_ones() -> None:
+    """At the end of data, the halves each topic held apart for a stamp ahead of its clock,
+    which nothing contradicted (the data moved on at the very end), are used; a stale move
+    that halves in time contradicted is set aside, said once."""
+    w = MoveWindower(window_size=100)
+    feed(w, [h for i in range(5) for h in halves(i, stamp=10.0 + 0.01 * i)])
+    feed(w, [h for i in range(5, 8) for h in halves(i, stamp=20.0 + 0.01 * i)])  # after a pause
+    assert w.held == 6  # fewer than CONFIRM of each topic: not confirmed yet
+    (win,) = w.flush(min_moves=2)
+    assert win.move_ids == tuple(range(8))
+    assert w.pop_rejections() == []
+
+    w = MoveWindower(window_size=100)
+    feed(w, [h for i in range(5) for h in halves(i, stamp=10.0 + 0.01 * i)])
+    feed(w, list(halves(5, stamp=0.0)))  # a stale move
+    feed(w, [h for i in range(6, 8) for h in halves(i, stamp=10.0 + 0.01 * i)])  # in time
+    assert w.held == 2
+    (win,) = w.flush(min_moves=2)
+    assert win.move_ids == (0, 1, 2, 3, 4, 6, 7)
+    (r,) = w.pop_rejections()
+    assert r.move_id == 5
+    assert 'behind the data clock' in r.reason
