@@ -565,3 +565,30 @@ def test_a_short_first_move_does_not_block_its_angle(bag: Path, tmp_path: Path) 
     (r,) = found.rejected
     assert r['move_id'] == 0
     assert 'incomplete at end of data' in r['reason']
+
+
+def test_the_warm_chains_hold_few_windows_however_long_the_bag(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """While the fits of a chain run, the reader goes on for at most WARM_CHAINS + 1 windows
+    and then waits: the windows alive stay few however many the bag holds (memory)."""
+    import gc
+    import time
+
+    import galvo_sysid.monitor.scheduler as scheduler_module
+    from galvo_sysid.field.offline import WARM_CHAINS
+    from galvo_sysid.monitor.moves import Window as WindowType
+
+    path = tmp_path / 'long'
+    simulate_bag(path, angles=[0.3, 0.6, 0.9, 1.2, 1.5], moves_per_angle=40, seed=3)
+    alive: list[int] = []
+
+    def fit(window: Window, **kwargs: Any) -> IdentificationResult:
+        time.sleep(0.02)  # a slow fit: the reader would run ahead of it
+        alive.append(sum(isinstance(o, WindowType) for o in gc.get_objects()))
+        raise IdentificationError('refined fit failed: not fitted here')
+
+    monkeypatch.setattr(scheduler_module, 'fit_window', fit)
+    found = identify_bag(path, window_size=10, pooling='inverse-variance')
+    assert len(alive) == 20  # 5 angles x 2 signs x 2 windows, none identified
+    assert not found.windows
+    assert max(alive) <= 2 * (WARM_CHAINS + 2)
