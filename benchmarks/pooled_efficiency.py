@@ -9,7 +9,9 @@ bound of the data it pools: rms error / CRLB <= 1.2 for every parameter.
 Per noise seed 0..``--seeds``-1, the paper's scanner runs the paper's schedule (the 19 angles,
 or the ``--angles`` first of them, each 100 forward moves with the return moves between them:
 ``GalvoSimulator.moves``), every angle's forward moves are a window, each window is identified
-alone (``identify_window``), the windows are pooled by the joint fit, and the bound is
+alone (``identify_window``; started, as ``galvo-sysid identify``'s warm chains start a window,
+from the previous window of the same sign, here the previous angle's, unless ``--afresh``),
+the windows are pooled by the joint fit, and the bound is
 evaluated at the true parameters on the same windows with the noise's true spectrum
 (``crlb_known_noise`` with the simulator's ``residual_noise_autocovariance``: the joint
 Fisher matrix, each window's nuisance partialled out). With ``--windows-per-angle k`` each
@@ -59,6 +61,7 @@ from galvo_sysid.field.pooling import JOINT_START, joint_records
 from galvo_sysid.ident.identify import identify_joint, identify_window
 from galvo_sysid.ident.pool import pool_results
 from galvo_sysid.ident.refine.bound import crlb_at, crlb_known_noise
+from galvo_sysid.ident.warm import WarmStart
 from galvo_sysid.model import PAPER_ANGLES, PAPER_MODEL, TAU
 from galvo_sysid.monitor.moves import Window as MovesWindow
 from galvo_sysid.sim.config import SimulatorConfig
@@ -83,7 +86,8 @@ def windows_of(seed: int, angles: list[float], moves: int = 100) -> Records:
     return [(np.array(cur[a]), np.array(enc[a])) for a in angles]
 
 
-def pooled_window(seed: int, angles: list[float], per_angle: int = 1) -> Window:
+def pooled_window(seed: int, angles: list[float], per_angle: int = 1,
+                  warm: bool = True) -> Window:
     """Identify every window, pool them by the joint fit, bound them all at the truth.
 
     With ``per_angle`` > 1 each angle has that many windows of 100 forward moves, fitted
@@ -97,13 +101,16 @@ def pooled_window(seed: int, angles: list[float], per_angle: int = 1) -> Window:
     t0 = time.perf_counter()
     singles = []
     noise_models = []  # each window's own fit's, reused by the joint fit as identify does
+    start_from: WarmStart | None = None  # identify's chain: the previous window of the sign
     for cur, enc in records:
         try:
-            singles.append(identify_window(cur, enc, sample_period=TAU))
+            singles.append(identify_window(cur, enc, sample_period=TAU, warm_start=start_from))
         except GalvoSysidError:
             noise_models.append(None)
+            start_from = None
             continue
         noise_models.append(singles[-1].noise_model)
+        start_from = WarmStart.from_result(singles[-1]) if warm else None
     start = pool_results(singles).model if singles else truth.modal
     if per_angle > 1:  # the windows of one angle as one window (its noise model made anew)
         held = [MovesWindow(index=j, target_angle=angles[j // per_angle], sample_period=TAU,
@@ -126,10 +133,10 @@ def pooled_window(seed: int, angles: list[float], per_angle: int = 1) -> Window:
     return scored(res, exact, truth.modal, seconds=seconds, estimated=estimated)
 
 
-def _attempt(seed: int, angles: list[float], per_angle: int) -> Window | str:
+def _attempt(seed: int, angles: list[float], per_angle: int, warm: bool) -> Window | str:
     """pooled_window, or the one-line error it raised."""
     try:
-        return pooled_window(seed, angles, per_angle)
+        return pooled_window(seed, angles, per_angle, warm)
     except GalvoSysidError as exc:
         return f'{type(exc).__name__}: {exc}'
 
@@ -144,6 +151,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--windows-per-angle', type=int, default=1,
                         help='windows of 100 moves per angle, each fitted alone and pooled as '
                              'one (as galvo-sysid identify pools windows of one angle)')
+    parser.add_argument('--afresh', action='store_true',
+                        help='fit every window afresh (identify --no-warm-start), not from the '
+                             'previous window')
     args = parser.parse_args(argv)
     per_angle = max(1, args.windows_per_angle)
     angles = list(PAPER_ANGLES[: max(1, args.angles)])
@@ -151,10 +161,11 @@ def main(argv: list[str] | None = None) -> int:
     shape = '' if per_angle == 1 else f' ({per_angle} per angle, pooled as one per angle)'
     print(f'pooled joint fit against the Cramer-Rao bound of its windows: paper scanner, '
           f'{len(angles) * per_angle} windows of 100 moves{shape} (angles '
-          f'{angles[0]:g}..{angles[-1]:g} deg), noise seeds 0..{args.seeds - 1}')
+          f'{angles[0]:g}..{angles[-1]:g} deg), noise seeds 0..{args.seeds - 1}; windows '
+          f'{"afresh" if args.afresh else "each from the previous (identify warm chains)"}')
     print(f'started {datetime.datetime.now().isoformat(timespec="seconds")}, load average '
           f'{_load()}\n')
-    tasks = [(seed, angles, per_angle) for seed in range(args.seeds)]
+    tasks = [(seed, angles, per_angle, not args.afresh) for seed in range(args.seeds)]
     if args.jobs > 1:
         with multiprocessing.get_context('fork').Pool(args.jobs) as pool:
             outcomes = pool.starmap(_attempt, tasks)
