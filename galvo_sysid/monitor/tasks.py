@@ -129,6 +129,8 @@ class SysidTask:
         self.windows_cut_short = 0
         """Windows whose fit passed its budget and left out the weak modes' profiles."""
         self._starts: OrderedDict[tuple[int, int], WarmStart] = OrderedDict()
+        # the latest result of each sign and record length: where an angle has none yet
+        self._by_sign: dict[tuple[int, int], WarmStart] = {}
 
     def add(self, half: MoveHalf) -> list[Window]:
         """Take one half; queue the windows it completed (returned) and report rejections."""
@@ -154,19 +156,28 @@ class SysidTask:
         searches afresh): after a reset, or new window or fit settings."""  # noqa: D205, D209
         with self._lock:
             self._starts.clear()
+            self._by_sign.clear()
 
     def _start_key(self, w: Window) -> tuple[int, int]:
         return (round(w.target_angle / self.windower.angle_resolution), w.current.shape[-1])
 
+    @staticmethod
+    def _sign_key(w: Window) -> tuple[int, int]:
+        return (1 if w.target_angle > 0 else -1, w.current.shape[-1])
+
     def _started(self, w: Window) -> Window:
-        """``w`` with the start its fit takes (the latest result of its angle), if any, and
-        its deadline (``fit_budget`` from now), if any."""  # noqa: D205, D209
+        """``w`` with the start its fit takes (the latest result of its angle; for an angle
+        without one yet, the latest of its sign and record length: another angle of the same
+        plant, as ``galvo-sysid identify``'s warm chains start), if any, and its deadline
+        (``fit_budget`` from now), if any."""  # noqa: D205, D209
         if self.fit_budget > 0:
             w = replace(w, deadline=time.monotonic() + self.fit_budget)
         if not self.warm_start:
             return w
         with self._lock:
             start = self._starts.get(self._start_key(w))
+            if start is None:
+                start = self._by_sign.get(self._sign_key(w))
         return w if start is None else replace(w, warm_start=start)
 
     def set_aside(self, text: str) -> None:
@@ -227,8 +238,10 @@ class SysidTask:
                 self._starts.move_to_end(key)
                 while len(self._starts) > MAX_STARTS:
                     self._starts.popitem(last=False)
+                self._by_sign[self._sign_key(w)] = start
             else:  # a failed or mismatched window: the next of its angle searches afresh
                 self._starts.pop(key, None)
+                self._by_sign.pop(self._sign_key(w), None)
             if outcome.result is not None:
                 self.windows_warm += outcome.result.warm_started
                 self.windows_cut_short += outcome.result.cut_short

@@ -513,3 +513,42 @@ def test_a_fit_budget_gives_each_window_its_deadline_and_counts_the_fits_cut_sho
     task.close()
     assert seen
     assert all(w.deadline is None for w, _ in seen)
+
+
+def test_an_angle_without_a_result_starts_from_the_latest_of_its_sign() -> None:
+    """The first window of an angle starts from the latest result of its sign and record
+    length (another angle of the same plant, as identify's warm chains start), where there is
+    one; a window that did not match leaves the next window of its sign, of whatever angle
+    without a result of its own, to search afresh."""
+    seen: list[Window] = []
+    done = Collector()
+
+    def fit(w: Window) -> IdentificationResult:
+        seen.append(w)
+        if w.index == 4:  # the first +0.9 deg window
+            raise ModelMismatchError('no physical mode 2 in its band')
+        return fake_result(w.target_angle, w.moves, omega_scale=1 + 0.01 * w.index)
+
+    task = SysidTask(fit, done, warn=lambda _: None, windower={'window_size': 10})
+    results: dict[int, IdentificationResult] = {}
+    sim = GalvoSimulator(seed=4)
+    for k, angle in enumerate((0.3, 0.6, 0.9, 1.2)):  # one window of each sign per angle
+        done.event.clear()
+        done.expected = 2 * (k + 1)
+        for h in halves_of(sim, [angle], 20):
+            task.add(h)
+        assert done.event.wait(10)
+        results.update({o.window.index: o.result for o in done.items
+                        if o.result is not None})
+    task.close()
+    by_index = {w.index: w for w in seen}
+    assert [round(by_index[i].target_angle, 1) for i in range(8)] == [
+        0.3, -0.3, 0.6, -0.6, 0.9, -0.9, 1.2, -1.2]
+    assert by_index[0].warm_start is None
+    assert by_index[1].warm_start is None
+    assert by_index[2].warm_start == WarmStart.from_result(results[0])  # +0.6 from +0.3
+    assert by_index[3].warm_start == WarmStart.from_result(results[1])  # -0.6 from -0.3
+    assert by_index[4].warm_start == WarmStart.from_result(results[2])
+    assert by_index[5].warm_start == WarmStart.from_result(results[3])
+    assert by_index[6].warm_start is None  # +0.9 did not match: its sign starts afresh
+    assert by_index[7].warm_start == WarmStart.from_result(results[5])
