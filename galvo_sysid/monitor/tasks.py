@@ -48,8 +48,8 @@ LATENCY_WINDOWS = 200
 """Windows the sysid task's latency figures (:meth:`SysidTask.latency_ms`) are taken over."""
 
 MAX_STARTS = 256
-"""Angles whose latest result the sysid task keeps to start their next window from (the least
-recently identified forgotten beyond)."""
+"""Angles (and signs, by record length) whose latest result the sysid task keeps to start their
+next window from (the least recently identified forgotten beyond)."""
 
 
 class SerializedHalf(Protocol):
@@ -130,7 +130,7 @@ class SysidTask:
         """Windows whose fit passed its budget and left out the weak modes' profiles."""
         self._starts: OrderedDict[tuple[int, int], WarmStart] = OrderedDict()
         # the latest result of each sign and record length: where an angle has none yet
-        self._by_sign: dict[tuple[int, int], WarmStart] = {}
+        self._by_sign: OrderedDict[tuple[int, int], WarmStart] = OrderedDict()
 
     def add(self, half: MoveHalf) -> list[Window]:
         """Take one half; queue the windows it completed (returned) and report rejections."""
@@ -227,6 +227,16 @@ class SysidTask:
         """The line saying the data do not match this task's model (:func:`mismatch_message`)."""
         return mismatch_message(reason, model_path=self.model_path)
 
+    @staticmethod
+    def _keep(starts: OrderedDict[tuple[int, int], WarmStart], key: tuple[int, int],
+              start: WarmStart) -> None:
+        """Keep ``start`` under ``key``, the least recently kept forgotten beyond
+        :data:`MAX_STARTS`."""  # noqa: D205, D209
+        starts[key] = start
+        starts.move_to_end(key)
+        while len(starts) > MAX_STARTS:
+            starts.popitem(last=False)
+
     def _done(self, outcome: FitOutcome) -> None:
         w = outcome.window
         key = self._start_key(w)
@@ -234,11 +244,8 @@ class SysidTask:
             self._latencies.append(outcome.queued + outcome.fit_time)
             start = None if outcome.result is None else WarmStart.from_result(outcome.result)
             if start is not None:
-                self._starts[key] = start
-                self._starts.move_to_end(key)
-                while len(self._starts) > MAX_STARTS:
-                    self._starts.popitem(last=False)
-                self._by_sign[self._sign_key(w)] = start
+                self._keep(self._starts, key, start)
+                self._keep(self._by_sign, self._sign_key(w), start)
             else:  # a failed or mismatched window: the next of its angle searches afresh
                 self._starts.pop(key, None)
                 self._by_sign.pop(self._sign_key(w), None)

@@ -552,3 +552,24 @@ def test_an_angle_without_a_result_starts_from_the_latest_of_its_sign() -> None:
     assert by_index[5].warm_start == WarmStart.from_result(results[3])
     assert by_index[6].warm_start is None  # +0.9 did not match: its sign starts afresh
     assert by_index[7].warm_start == WarmStart.from_result(results[5])
+
+
+def test_the_starts_kept_are_bounded_by_angles_and_by_record_lengths() -> None:
+    """Results kept to start later windows from are at most MAX_STARTS per kind (angles; signs
+    by record length), the least recently identified forgotten: windows of ever new angles or
+    record lengths cannot grow the task's memory."""
+    from galvo_sysid.monitor.tasks import MAX_STARTS
+
+    task = SysidTask(lambda w: fake_result(), lambda o: None, warn=lambda _: None)
+    n = MAX_STARTS + 40
+    for i in range(n):
+        w = Window(index=i, target_angle=0.3 + 0.01 * i, sample_period=1e-5,
+                   current=np.zeros((2, 64 + i)), encoder=np.zeros((2, 64 + i)),
+                   move_ids=(0, 1), first_stamp=0.0, last_stamp=1.0)
+        task._done(FitOutcome(w, fake_result(), None, queued=0.0, fit_time=0.0))
+    task.close()
+    assert len(task._starts) == MAX_STARTS
+    assert len(task._by_sign) == MAX_STARTS
+    newest = (1, 64 + n - 1)
+    assert newest in task._by_sign
+    assert (1, 64) not in task._by_sign  # the oldest forgotten
