@@ -46,8 +46,9 @@ lint: setup
 	$(VENV)/bin/mypy galvo_sysid
 
 # Speed and accuracy figures (tables on stdout; latest output in docs/benchmarks.md).
-BENCHMARKS := accuracy scanner_family paper_pipeline simulator_speed offline_speed sysid_throughput \
-              sysid_load discrepancy_confusion sysid_hostile_input dither_gain efficiency pooled_efficiency fit_stages
+BENCHMARKS := accuracy scanner_family paper_pipeline simulator_speed offline_speed offline_warm \
+              sysid_throughput sysid_load discrepancy_confusion sysid_hostile_input dither_gain \
+              efficiency pooled_efficiency fit_stages
 bench: setup
 	set -e; for b in $(BENCHMARKS); do echo "== benchmarks/$$b.py"; $(VPY) benchmarks/$$b.py; done
 
