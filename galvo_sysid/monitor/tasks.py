@@ -93,7 +93,8 @@ class SysidTask:
         processes: Child processes for the fits (0: fit on a worker thread).
         warnings_per_second: Most warning lines a second.
         warm_start: Start each window's refined fit from the latest result of its angle and
-            record length (:mod:`galvo_sysid.ident.warm`).
+            record length, or of its sign where the angle has none yet
+            (:mod:`galvo_sysid.ident.warm`).
         model_path: The plant-model file the fits use ('' or None: the packaged paper
             model), for the messages.
         fit_budget: Seconds from a window's completion past which its refined fit leaves out
@@ -124,7 +125,8 @@ class SysidTask:
         """Whether the latest finished window did not match the model."""
         self.warm_start = bool(warm_start)
         self.windows_warm = 0
-        """Windows identified by a fit started from the previous window of their angle."""
+        """Windows identified by a fit started from an earlier result (of their angle, or
+        of their sign)."""
         self.fit_budget = float(fit_budget)
         self.windows_cut_short = 0
         """Windows whose fit passed its budget and left out the weak modes' profiles."""
@@ -273,7 +275,7 @@ class SysidTask:
         """Counters: halves received, moves accepted/rejected (and of those, halves of
         another sample period than the model's, halves refused before decoding, halves set
         aside for their stamp, waiting halves evicted), windows identified (and of those,
-        by a fit started from the previous window of their angle, and by a fit cut short at
+        by a fit started from an earlier result, and by a fit cut short at
         its budget) / failed / not matching the model / dropped, open windows evicted /
         expired, resets, queue, bytes of samples buffered, the most one topic came late
         behind the other [ms]."""  # noqa: D205, D209

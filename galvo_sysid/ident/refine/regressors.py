@@ -30,6 +30,7 @@ if TYPE_CHECKING:
 __all__ = [
     'FIRST_ROW',
     'Regressors',
+    'filtered_input',
     'free_responses',
     'modal_regressors',
     'powers',
@@ -85,6 +86,18 @@ def powers(omega: Floats, zeta: Floats, n: int,
     return p, e
 
 
+def filtered_input(u: NDArray[np.float64], pre: ArrayLike | None = None) -> tuple[
+        NDArray[np.float64], NDArray[np.float64]]:
+    """``(u0, uf)`` of input records u (..., N): u less its level ``pre`` before the record
+    (default: its first sample), and (1 - q^-1)^2 u with that level held before it (what
+    :class:`Regressors` convolves)."""  # noqa: D205, D209
+    before = u[..., :1] if pre is None else np.broadcast_to(
+        np.asarray(pre, dtype=float), u[..., :1].shape)
+    d1 = np.diff(u, axis=-1, prepend=before)
+    uf = np.asarray(np.diff(d1, axis=-1, prepend=0.0 * d1[..., :1]), dtype=np.float64)
+    return np.asarray(u - before, dtype=np.float64), uf
+
+
 def rigid_taps(*, sample_period: float, delay: int, fraction: float) -> tuple[
         NDArray[np.float64], NDArray[np.float64]]:
     """FIR taps of the rigid body's double and single integrator behind the pure delay
@@ -117,11 +130,7 @@ class Regressors:
         self.fraction = fraction
         self.n = u.shape[-1]
         self.nfft = int(sp_fft.next_fast_len(2 * self.n - 1, real=True))  # no wrap-around
-        before = u[..., :1] if pre is None else np.broadcast_to(
-            np.asarray(pre, dtype=float), u[..., :1].shape)
-        u0 = u - before
-        d1 = np.diff(u, axis=-1, prepend=before)
-        self.uf = np.asarray(np.diff(d1, axis=-1, prepend=0.0 * d1[..., :1]), dtype=np.float64)
+        u0, self.uf = filtered_input(u, pre)
         self.uf_hat = sp_fft.rfft(self.uf, self.nfft, axis=-1)
         self._lag_cache: tuple[float, NDArray[np.float64]] | None = None
         self._taps_cache: tuple[NDArray[np.float64], NDArray[np.complex128]] | None = None

@@ -26,6 +26,7 @@ from galvo_sysid.errors import InvalidDataError
 from galvo_sysid.ident.refine.regressors import (
     FIRST_ROW,
     Regressors,
+    filtered_input,
     free_responses,
     powers,
     rigid_taps,
@@ -101,6 +102,12 @@ def window_records(windows: Sequence[tuple[ArrayLike, ArrayLike]], min_moves: in
 _LAST_MOVES: list[tuple[tuple[float, int, float], NDArray[np.float64], Regressors]] = []
 
 
+def _moves_input(cur: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The moves' currents less their mean, and each one's level before its record (the
+    settled end of the previous move, less the mean's): the input of their deviations."""  # noqa: D205, D209
+    return cur - cur.mean(axis=0), cur[:, -1:] - cur[:, -1].mean()
+
+
 def _moves_regressors(cur: NDArray[np.float64], *, sample_period: float, delay: int,
                       fraction: float) -> Regressors:
     """The moves' deviations from their mean current as :class:`Regressors`.
@@ -114,8 +121,8 @@ def _moves_regressors(cur: NDArray[np.float64], *, sample_period: float, delay: 
     if last is not None and last[0] == key and last[1].shape == cur.shape \
             and np.array_equal(last[1], cur):
         return last[2]
-    regs = Regressors(cur - cur.mean(axis=0), sample_period=sample_period, delay=delay,
-                      fraction=fraction, pre=cur[:, -1:] - cur[:, -1].mean())
+    dev, pre = _moves_input(cur)
+    regs = Regressors(dev, sample_period=sample_period, delay=delay, fraction=fraction, pre=pre)
     _LAST_MOVES[:] = [(key, np.array(cur, dtype=float), regs)]
     return regs
 
@@ -434,12 +441,9 @@ class WindowProblem:
             if tap != 0 and i < size:
                 fir_corr[: size - i] += tap * padded[i:]
         # the moves' inputs as the moves' Regressors take them (see _moves_regressors)
-        dev_u = self.cur - self.cur.mean(axis=0)
-        pre = self.cur[:, -1:] - self.cur[:, -1].mean()
-        d1 = np.diff(dev_u, axis=-1, prepend=pre)
-        u_f = np.diff(d1, axis=-1, prepend=0.0 * d1[:, :1])
-        return np.asarray(self._moves_enc[:, first:] @ columns - u_f @ corr
-                          - (dev_u - pre) @ fir_corr, dtype=np.float64)
+        u0, u_f = filtered_input(*_moves_input(self.cur))
+        return np.asarray(self._moves_enc[:, first:] @ columns - u_f @ corr - u0 @ fir_corr,
+                          dtype=np.float64)
 
     def noise(self, omega: NDArray[np.float64], zeta: NDArray[np.float64], lag: float,
               coef: NDArray[np.float64]) -> NDArray[np.float64]:
