@@ -16,10 +16,12 @@ moves instead (windows of moves of one target angle, as the sysid node collects 
 3. **Modes, one at a time**: every frequency of the search range (300 Hz, or a record's
    length, up to 0.95 x Nyquist) and damping is scanned for the mode that lowers the joint
    fit's chi-square most; the mode is added and all are fitted again (joint refined fit,
-   fixed noise filters from the moves' scatter, so fits of different orders compare). The
-   number of modes is the one with the lowest Bayesian information criterion
-   ``chi2 + parameters x ln(rows)``; a mode that would be unresolved, or end at its band's
-   edge, is not added.
+   each window weighed by one fixed noise model, so fits of different orders compare: the
+   stationary noise of the rigid body's residual, which counts the current disturbance that
+   the controller cancels in the readings; the moves' scatter alone where that model
+   cannot be made, and to choose the delay the first time). The number of modes is the one
+   with the lowest Bayesian information criterion ``chi2 + parameters x ln(rows)``; a mode
+   that would be unresolved, or end at its band's edge, is not added.
 4. **Pooled fit**: the chosen model fitted jointly to every window (up to
    ``max_windows``), its covariance giving each parameter's standard deviation; bands
    around the modes.
@@ -58,7 +60,7 @@ if TYPE_CHECKING:
 
     from numpy.typing import ArrayLike, NDArray
 
-    from galvo_sysid.ident.refine.whitener import Whitener
+    from galvo_sysid.ident.refine.whitener import NoiseModel, Whitener
 
 __all__ = [
     'Commissioning',
@@ -251,23 +253,26 @@ def commission(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period:
         f'on {len(chosen)} windows, modes looked for in {lo / (2e3 * math.pi):.3g}..'
         f'{hi / (2e3 * math.pi):.3g} kHz')
 
+    models: tuple[NoiseModel, ...] = ()  # the noise the selection weighs by, once found
+
     def fit(modal: ModalModel, delay: int, lag: float) -> RefinedFit:
         return refine_joint(chosen, sample_period=t, initial=modal,
                             dynamics=InputDynamics(computation_delay=delay,
                                                    lag_time_constant=lag),
                             bands=_bands(modal, lo, hi), options=_OPTIONS,
-                            noise_filters=filters)
+                            noise_filters=None if models else filters, noise_models=models)
 
-    rigid = ModalModel(k0=1.0, residues=(), natural_frequencies=(), damping_ratios=())
-    fits = []
-    for delay in range(_MAX_DELAY + 1):
-        try:
-            fits.append((fit(rigid, delay, 0.5 * t), delay))
-        except GalvoSysidError:
-            continue
-    if not fits:
-        raise InvalidDataError('not even the rigid body fits these windows')
-    current, delay = min(fits, key=lambda f: f[0].chi2)
+    current, delay = _rigid_body(fit, t)
+    # The moves' scatter is not the noise a model's residual carries in a closed loop: below
+    # the crossover the controller cancels the current disturbance, so the readings scatter
+    # little while the residual (that disturbance through the plant) is large, and every
+    # low-frequency candidate seems to lower chi2 more than a real resonance does (a scanner
+    # of the independent simulator, test/independent_scanner.py seed 10: its one mode was
+    # never tried). The selection weighs each window by the noise the rigid body's residual
+    # shows (its stationary noise model) and chooses the delay again with it.
+    models = _residual_noise(chosen, current, t)
+    if models:
+        current, delay = _rigid_body(fit, t)
     rows = current.rows
     windows_used = len(chosen)
 
@@ -279,7 +284,7 @@ def commission(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period:
     say(f'rigid body: computation delay {delay} sample(s), lag '
         f'{current.lag_time_constant / t:.2f} T, chi2/rows {current.chi2 / rows:.3g}')
     while current.model.n_modes < max_modes:
-        candidate, note = _add_mode(chosen, current, filters, lo, hi, fit, delay, t)
+        candidate, note = _add_mode(chosen, current, (filters, models), lo, hi, fit, delay, t)
         if candidate is None:
             steps[-1] = replace(steps[-1], note=note)
             break
@@ -343,8 +348,37 @@ def _bands(modal: ModalModel, lo: float, hi: float) -> tuple[tuple[float, float]
     return tuple(pairwise(edges))
 
 
+def _rigid_body(fit: Callable[[ModalModel, int, float], RefinedFit], t: float) -> tuple[
+        RefinedFit, int]:
+    """The rigid body's best fit over the whole samples of delay, and its delay."""
+    rigid = ModalModel(k0=1.0, residues=(), natural_frequencies=(), damping_ratios=())
+    fits = []
+    for delay in range(_MAX_DELAY + 1):
+        try:
+            fits.append((fit(rigid, delay, 0.5 * t), delay))
+        except GalvoSysidError:
+            continue
+    if not fits:
+        raise InvalidDataError('not even the rigid body fits these windows')
+    return min(fits, key=lambda f: f[0].chi2)
+
+
+def _residual_noise(chosen: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+                    current: RefinedFit, t: float) -> tuple[NoiseModel, ...]:
+    """Each window's stationary noise model under ``current``'s model (empty if one of them
+    cannot be made: the selection then keeps the moves' scatter)."""  # noqa: D205, D209
+    try:
+        free = refine_joint(chosen, sample_period=t, initial=current.model,
+                            dynamics=current.dynamics, options=_OPTIONS)
+    except GalvoSysidError:
+        return ()
+    found = tuple(m for m in free.noise_models if m is not None)
+    return found if len(found) == len(chosen) else ()
+
+
 def _add_mode(chosen: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
-              current: RefinedFit, filters: list[Whitener | None], lo: float, hi: float,
+              current: RefinedFit,
+              noise: tuple[list[Whitener | None], tuple[NoiseModel, ...]], lo: float, hi: float,
               fit: Callable[[ModalModel, int, float], RefinedFit],
               delay: int, t: float) -> tuple[RefinedFit | None, str]:
     """The fit with one more mode at the best scanned candidate, or (None, why not).
@@ -363,7 +397,8 @@ def _add_mode(chosen: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
         near = np.min(np.abs(np.log(w_c[:, None] / found[None, :])), axis=1)
         far = near > math.log(_MIN_SEPARATION)
         w_c, z_c = w_c[far], z_c[far]
-    gains = added_mode_gains(chosen, current, noise_filters=filters, candidates=(w_c, z_c))
+    gains = added_mode_gains(chosen, current, noise_filters=noise[0], candidates=(w_c, z_c),
+                             noise_models=noise[1])
     best = int(np.argmax(gains))
     if not gains[best] > _EVIDENCE:
         return None, f'no further mode lowers chi2 by {_EVIDENCE:g} (best {gains[best]:.3g})'

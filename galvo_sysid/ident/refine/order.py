@@ -1,7 +1,9 @@
 """Choosing a model's order: fixed noise filters and the gain of one more mode.
 
 The filters make fits of different orders to the same windows comparable (one ``chi2``
-scale); commissioning adds the mode whose candidate lowers it most.
+scale); commissioning adds the mode whose candidate lowers it most. Fixed noise models
+(:class:`~galvo_sysid.ident.refine.whitener.NoiseModel`, e.g. a rigid-body fit's) do the same
+with the noise as a model's residual sees it.
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ import numpy as np
 
 from galvo_sysid.ident.refine.options import DEFAULT_WHITEN_ORDER
 from galvo_sysid.ident.refine.regressors import FIRST_ROW, second_difference
-from galvo_sysid.ident.refine.whitener import Whitener, noise_whitener
+from galvo_sysid.ident.refine.whitener import NoiseModel, Whitener, noise_whitener
 from galvo_sysid.ident.refine.window import WindowProblem, validate, window_records
 from galvo_sysid.model.dynamics import split_delay
 
@@ -45,8 +47,8 @@ def window_noise_filters(windows: Sequence[tuple[ArrayLike, ArrayLike]], *,
 
 def added_mode_gains(windows: Sequence[tuple[ArrayLike, ArrayLike]], fit: RefinedFit, *,
                      noise_filters: Sequence[Whitener | None],
-                     candidates: tuple[NDArray[np.float64], NDArray[np.float64]]) -> (
-                         NDArray[np.float64]):
+                     candidates: tuple[NDArray[np.float64], NDArray[np.float64]],
+                     noise_models: Sequence[NoiseModel | None] = ()) -> NDArray[np.float64]:
     """Drop of a joint fit's ``chi2`` if one more mode were added at each candidate.
 
     The fit's modes and lag stay fixed, all linear coefficients are solved again; the same
@@ -57,6 +59,8 @@ def added_mode_gains(windows: Sequence[tuple[ArrayLike, ArrayLike]], fit: Refine
         fit: A joint fit made with ``noise_filters``.
         noise_filters: Its filters.
         candidates: ``(omega, zeta)`` of the candidate modes.
+        noise_models: Per window, the fixed noise model the fit weighed it with instead of
+            its filter (its whitener and weight), if any.
 
     Returns:
         The drop of chi2 per candidate.
@@ -68,10 +72,16 @@ def added_mode_gains(windows: Sequence[tuple[ArrayLike, ArrayLike]], fit: Refine
     t = fit.sample_period
     delay, frac = split_delay(fit.computation_delay * t + fit.dead_time, t)
     total = np.zeros(w_c.size)
-    for (cur, enc), filt in zip(window_records(windows, 1), noise_filters, strict=True):
+    models = list(noise_models) + [None] * (len(noise_filters) - len(noise_models))
+    for (cur, enc), filt, model in zip(window_records(windows, 1), noise_filters, models,
+                                       strict=True):
         prob = WindowProblem(cur, enc, sample_period=t, delay=delay, fraction=frac,
                              n_modes=m.n_modes)
-        prob.set_whitening(filt)
-        weight = 1.0 / max(prob.raw_noise_rms(), 1e-300)
+        if model is not None:
+            prob.set_whitening(model.whitener())
+            weight = model.weight()
+        else:
+            prob.set_whitening(filt)
+            weight = 1.0 / max(prob.raw_noise_rms(), 1e-300)
         total += weight * weight * prob.scan_new(omega, zeta, fit.lag_time_constant, w_c, z_c)
     return total
