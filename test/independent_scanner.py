@@ -188,6 +188,13 @@ class _Loop:
         self.z = [[0.0, 0.0] for _ in self.sections]
         self.queue = [0.0] * s.delay  # commands computed, not yet applied
 
+    def amplifier_current(self, disturbance: float) -> float:
+        """The current in the motor now: the lag's state, or without a lag the value held
+        over this sample (the command due now plus the disturbance)."""
+        if self.s.lag > 0:
+            return float(self.x[-1])
+        return (self.queue[0] if self.queue else 0.0) + disturbance
+
     def step(self, reference: float, feedforward: float, disturbance: float,
              noise: float) -> tuple[float, float]:
         """One sample: (command, reading); the plant then moves on by one sample."""
@@ -305,10 +312,16 @@ def _profile(name: str, samples: int) -> np.ndarray:
     raise ValueError(msg)
 
 
-def simulate(s: Scanner, *, angles: list[float], moves_per_angle: int,
-             seed: int) -> dict[str, np.ndarray]:
+def simulate(s: Scanner, *, angles: list[float], moves_per_angle: int, seed: int,
+             current: str = 'command', sensor_noise: float = 1e-3) -> dict[str, np.ndarray]:
     """``moves_per_angle`` moves of +a and -a in turn (+a first) for each a of ``angles``,
     one angle after the other, as recorded.
+
+    ``current``: what the current record holds: ``'command'`` (the controller's output, as
+    the package's model takes it: computation delay and amplifier lag between it and the
+    mechanics) or ``'measured'`` (the amplifier's output current at each sample, disturbance
+    included, plus white sensor noise of std ``sensor_noise`` [A]: no delay, and the current
+    between two samples is the lag's smooth response, not a held value).
 
     Returns:
         ``current`` and ``encoder`` (moves, record), ``target_angle`` (moves,), and
@@ -330,6 +343,11 @@ def simulate(s: Scanner, *, angles: list[float], moves_per_angle: int,
     enc = scipy.signal.lfilter([1.0], [1.0, -2 * r * math.cos(theta), r * r],
                                rng.standard_normal(total))
     enc *= s.encoder_noise * s.quantum / np.std(enc)
+    if current not in ('command', 'measured'):
+        msg = f'current must be command or measured, got {current!r}'
+        raise ValueError(msg)
+    measured = current == 'measured'
+    sensor = sensor_noise * rng.standard_normal(total)
     cur_out = np.empty((moves, s.record))
     enc_out = np.empty((moves, s.record))
     targets = np.empty(moves)
@@ -347,10 +365,11 @@ def simulate(s: Scanner, *, angles: list[float], moves_per_angle: int,
         acc[1:-1] = (ref[2:] - 2 * ref[1:-1] + ref[:-2]) / t**2
         ff = s.feedforward_gain * acc / s.k0
         for j in range(span):
+            flowing = loop.amplifier_current(dist[k])
             command, reading = loop.step(float(ref[j]), float(ff[j]), dist[k], enc[k])
             k += 1
             if j < s.record:
-                cur_out[m, j] = command
+                cur_out[m, j] = command if not measured else flowing + sensor[k]
                 enc_out[m, j] = reading
         position += step
     return {'current': cur_out, 'encoder': enc_out, 'target_angle': targets,

@@ -106,6 +106,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument('--max-bytes', type=positive(int), default=MAX_BYTES, metavar='N',
                    help='refuse a file, or its arrays as float64, larger than this '
                         '(default: %(default)s = 1 GiB)')
+    p.add_argument('--current-lead', type=int, default=0, metavar='N',
+                   help='the current record leads the encoder by N samples (a coil current '
+                        'measured when the encoder is read: 1); each current is moved N '
+                        'samples earlier and the records shortened by N (commission says '
+                        'when data look like this)')
     p.add_argument('--no-travel-check', action='store_true',
                    help="do not check the encoder's travel against the target angles")
     return p
@@ -128,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
     summary = import_bag(args.file, args.out, format=args.format,
                          sample_period=args.sample_period, target_angle=args.target_angle,
                          storage=args.storage, max_bytes=args.max_bytes,
-                         check_travel=not args.no_travel_check)
+                         check_travel=not args.no_travel_check,
+                         current_lead=args.current_lead)
     print(summary, file=sys.stderr)
     return 0

@@ -71,6 +71,7 @@ class BagCommissioning:
             'selection_windows': r.selection_windows,
             'set_aside': list(self.set_aside),
             'rejected_moves': self.rejected,
+            'warnings': list(r.warnings),
             'seconds': self.seconds,
         }
 
@@ -184,12 +185,15 @@ def format_commissioning(found: BagCommissioning, *, out: str | None = None) -> 
             f' {z:9.4g} {std.get(f"zeta_{i}", math.nan):8.2g} {k:16.5g} '
             f'{std.get(f"k{i}", math.nan):9.2g}  {lo / (2e3 * math.pi):.3g}..'
             f'{hi / (2e3 * math.pi):.3g}{flag}')
-    if not m.n_modes:
+    if not m.n_modes and r.warnings:
+        lines.append('  no resonant mode found (see the warnings)')
+    elif not m.n_modes:
         lines.append("  no resonant mode found: these moves do not excite the scanner's "
                      "resonances above the noise (see the order selection's last note); the "
                      'model is the rigid body alone, and monitoring with it judges k0 and the '
                      'lag only. Record faster moves, or add a dither at the resonances, to '
                      'commission the modes')
+    lines += [f'  WARNING: {text}' for text in r.warnings]
     for text in found.set_aside:
         lines.append(f'  set aside: {text}')
     if found.rejected:

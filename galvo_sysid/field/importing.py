@@ -8,9 +8,11 @@ written into a standard rosbag2 bag exactly as ``galvo-sysid simulate`` writes i
 log time the time of the move's first sample. Every tool then reads it (``identify``,
 ``commission``, ``discrepancy``, ``replay``, ``info``).
 
-Units: current [A] (the current command, as the DSP computes it), encoder [deg] (the raw
-angle; each record's first sample is its start angle), target angle [deg] (the signed
-commanded rotation of the move, e.g. +0.3 forward and -0.3 back), sample period [s], stamp [s].
+Units: current [A] (the current command, as the DSP computes it; a coil current measured
+when the encoder is read leads it by a sample: ``current_lead``, :func:`lead_current`),
+encoder [deg] (the raw angle; each record's first sample is its start angle), target angle
+[deg] (the signed commanded rotation of the move, e.g. +0.3 forward and -0.3 back), sample
+period [s], stamp [s].
 
 NumPy ``.npz`` (``numpy.savez`` / ``savez_compressed``) and MATLAB ``.mat`` (v4, v6 and v7,
 ``save -v7``; v7.3 files, which are HDF5, are refused: save with ``-v7`` or write an .npz)
@@ -81,7 +83,7 @@ import time
 import zipfile
 import zlib
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -111,6 +113,7 @@ __all__ = [
     'ImportedMove',
     'ImportedMoves',
     'import_bag',
+    'lead_current',
     'moves_from_arrays',
     'read_moves',
     'write_bag',
@@ -252,7 +255,7 @@ def import_bag(source: str | os.PathLike[str], out: str | os.PathLike[str], *,
                format: str | None = None, sample_period: float | None = None,
                target_angle: float | None = None, storage: str = 'mcap',
                max_bytes: int = MAX_BYTES, check_travel: bool = True,
-               frame_id: str = '') -> ImportSummary:
+               frame_id: str = '', current_lead: int = 0) -> ImportSummary:
     """Read the moves of a CSV, .npz or .mat file and write them into a new bag.
 
     Args:
@@ -266,6 +269,8 @@ def import_bag(source: str | os.PathLike[str], out: str | os.PathLike[str], *,
         max_bytes: Size limit of the file and of its arrays as float64 [bytes].
         check_travel: Check the encoder's travel against the target angles.
         frame_id: Header frame id of the messages.
+        current_lead: Samples by which the current record leads the encoder (see
+            :func:`lead_current`); 0 as recorded.
 
     Raises:
         InvalidDataError: The file cannot be read or its data are refused (see the module
@@ -282,9 +287,9 @@ def import_bag(source: str | os.PathLike[str], out: str | os.PathLike[str], *,
     if storage not in {'mcap', 'sqlite3'}:
         msg = f'unknown storage {storage!r}: use mcap or sqlite3'
         raise ConfigurationError(msg)
-    moves = read_moves(source, format=format, sample_period=sample_period,
-                       target_angle=target_angle, max_bytes=max_bytes,
-                       check_travel=check_travel)
+    moves = lead_current(read_moves(source, format=format, sample_period=sample_period,
+                                    target_angle=target_angle, max_bytes=max_bytes,
+                                    check_travel=check_travel), current_lead)
     write_bag(path, moves, storage=storage, frame_id=frame_id)
     size = sum(p.stat().st_size for p in path.rglob('*') if p.is_file())
     lengths = [m.current.shape[0] for m in moves.moves]
@@ -292,6 +297,35 @@ def import_bag(source: str | os.PathLike[str], out: str | os.PathLike[str], *,
                          moves=len(moves.moves), shortest=min(lengths), longest=max(lengths),
                          sample_period=moves.sample_period, angles=moves.angles, size=size,
                          seconds=time.perf_counter() - start, ignored=moves.ignored)
+
+
+def lead_current(moves: ImportedMoves, lead: int) -> ImportedMoves:
+    """The moves with each current record ``lead`` samples earlier against its encoder.
+
+    A coil current measured at the instant the encoder is read is the current that flowed
+    before it; the model takes the current that flows over the next sample period (a
+    command, held by the amplifier), which is the measured one a sample later.
+    ``galvo-sysid commission`` says when data look like that. Each pair keeps the samples
+    both records still cover: the current's from ``lead`` on, the encoder's up to its last
+    ``lead``; the stamp stays the encoder's first sample's.
+
+    Raises:
+        ConfigurationError: ``lead`` is negative or not below 1000.
+        InvalidDataError: A record would be left shorter than :data:`MIN_SAMPLES`.
+    """
+    if isinstance(lead, bool) or not isinstance(lead, int) or not 0 <= lead < 1000:
+        msg = f'current lead must be a whole number of samples within 0..999, got {lead!r}'
+        raise ConfigurationError(msg)
+    if not lead:
+        return moves
+    shortest = min(m.current.shape[0] for m in moves.moves)
+    if shortest - lead < MIN_SAMPLES:
+        msg = (f'{moves.source}: a current lead of {lead} samples leaves records of '
+               f'{shortest - lead} samples; identification needs at least {MIN_SAMPLES}')
+        raise InvalidDataError(msg)
+    return replace(moves, moves=tuple(replace(m, current=m.current[lead:],
+                                              encoder=m.encoder[:-lead])
+                                      for m in moves.moves))
 
 
 def write_bag(out: str | os.PathLike[str], moves: ImportedMoves, *, storage: str = 'mcap',

@@ -80,6 +80,11 @@ _OPTIONS = RefineOptions(lag_bounds=_LAG_BOUNDS, scan_points=0, keep_initial_dam
 1.5 samples (beyond it the split from a whole sample of delay is ambiguous), no adequacy check
 (a model of too low an order is expected to leave dynamics)."""
 _MIN_SEPARATION = 1.08  # a new mode this close to a found one is the same mode
+INADEQUATE_CHI2 = 3.0
+"""The pooled fit's chi2 per row (about 1 for a model that explains the data to their noise)
+above which commissioning warns that the model does not describe the data."""
+_LEAD_GAIN = 4.0  # the rigid body's chi2 this many times lower with the current one sample
+# earlier: the current record leads the encoder
 _EVIDENCE = 25.0        # chi2 drop (5 sigma) a new mode needs before it is tried
 
 
@@ -133,6 +138,9 @@ class Commissioning:
         windows: Windows in the pooled fit.
         selection_windows: Windows the order selection used.
         rows: Residual rows of the selection fits (for the criterion).
+        warnings: What makes the model doubtful, one line each: it fits the data far worse
+            than their noise (:data:`INADEQUATE_CHI2`), and why if that can be told (the
+            current record leading the encoder by a sample).
     """
 
     model: PlantModel
@@ -142,6 +150,7 @@ class Commissioning:
     windows: int
     selection_windows: int
     rows: int
+    warnings: tuple[str, ...] = ()
 
     @property
     def n_modes(self) -> int:
@@ -307,13 +316,59 @@ def commission(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period:
         steps[-1] = replace(steps[-1], note=f'stopped at max_modes={max_modes}')
     pooled_records = _spread(records, max_windows)
     final = _pooled(pooled_records, current, lo, hi, t)
+    warnings = _adequacy(final, chosen, t)
+    for text in warnings:
+        say(f'warning: {text}')
     say(f'pooled fit over {len(pooled_records)} windows: {final.model.n_modes} mode(s), fit '
         f'{final.fit_percent:.2f} %')
     model = _to_model(final, t, record_length=record_length or n_samples,
                       dwell_length=dwell_length, description=description)
     return Commissioning(model=model, fit=final, response=response, steps=tuple(steps),
                          windows=len(pooled_records), selection_windows=len(chosen),
-                         rows=rows)
+                         rows=rows, warnings=warnings)
+
+
+def _adequacy(final: RefinedFit,
+              chosen: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+              t: float) -> tuple[str, ...]:
+    """Warnings on a pooled fit far worse than the noise (see :attr:`Commissioning.warnings`).
+
+    A current record that leads the encoder by a sample (a measured coil current sampled at
+    the encoder's instant: the current flowing over a sample period is the next sample's,
+    which no delay of the model can express) is told by the rigid body fitting
+    :data:`_LEAD_GAIN` times better with the current one sample earlier.
+    """
+    ratio = final.chi2 / max(final.rows, 1)
+    if not ratio > INADEQUATE_CHI2:
+        return ()
+    out = [f'the model fits these data {ratio:.3g} times worse than their noise (chi2 per '
+           f'row; about 1 for a model that explains them): its parameters and standard '
+           f'deviations do not hold']
+    rigid = ModalModel(k0=1.0, residues=(), natural_frequencies=(), damping_ratios=())
+
+    def rigid_chi2(records: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+                   delay: int) -> float:
+        try:
+            fit = refine_joint(records, sample_period=t, initial=rigid,
+                               dynamics=InputDynamics(computation_delay=delay,
+                                                      lag_time_constant=0.5 * t),
+                               bands=(), options=_OPTIONS)
+        except GalvoSysidError:
+            return math.inf
+        return fit.chi2 / max(fit.rows, 1)
+
+    as_is = min(rigid_chi2(chosen, d) for d in range(2))
+    led = rigid_chi2([(c[:, 1:], e[:, :-1]) for c, e in chosen], 0)
+    if led * _LEAD_GAIN < as_is:
+        out.append(f'the current record leads the encoder by one sample (the rigid body fits '
+                   f'{as_is / led:.3g} times better with it one sample earlier: a measured '
+                   f'current sampled with the encoder?); import the data with '
+                   f'--current-lead 1 and commission again')
+    else:
+        out.append('the data hold dynamics the model cannot describe (a mode outside the '
+                   'search range, friction, saturation, a current record not aligned with '
+                   'the encoder): galvo-sysid discrepancy compares a model with them')
+    return tuple(out)
 
 
 def _records(windows: Sequence[tuple[ArrayLike, ArrayLike]]) -> list[

@@ -21,6 +21,7 @@ from galvo_sysid.field.importing import (
     MAX_BYTES,
     MIN_SAMPLES,
     import_bag,
+    lead_current,
     moves_from_arrays,
     read_moves,
 )
@@ -494,3 +495,23 @@ def test_any_arrays_give_moves_or_one_typed_line(data: st.DataObject) -> None:
         return
     assert '\n' not in message
     assert message.startswith('arrays: ')
+
+
+def test_a_current_that_leads_the_encoder_is_moved_earlier() -> None:
+    # a coil current measured when the encoder is read: the current of sample k + 1 is the
+    # one that flowed over sample k; each pair keeps the samples both records still cover
+    cur = np.arange(2 * 40, dtype=float).reshape(2, 40)
+    enc = np.cumsum(np.full((2, 40), 0.01), axis=1)
+    moves = moves_from_arrays(cur, enc, sample_period=1e-5, target_angle=0.3,
+                              stamp=[1.0, 2.0])
+    led = lead_current(moves, 1)
+    assert [m.current.shape[0] for m in led.moves] == [39, 39]
+    np.testing.assert_array_equal(led.moves[1].current, cur[1, 1:])
+    np.testing.assert_array_equal(led.moves[1].encoder, enc[1, :-1])
+    assert [m.stamp for m in led.moves] == [1.0, 2.0]
+    assert lead_current(moves, 0) is moves
+    with pytest.raises(InvalidDataError, match='leaves records of 31 samples'):
+        lead_current(moves, 9)
+    for bad in (-1, 1000, True):
+        with pytest.raises(ConfigurationError, match='current lead'):
+            lead_current(moves, bad)

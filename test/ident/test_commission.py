@@ -48,6 +48,7 @@ def test_the_modes_delay_and_lag_are_found(commissioned):
     assert model.dynamics.lag_time_constant == pytest.approx(
         truth.dynamics.lag_time_constant, abs=0.02 * truth.sample_period)
     assert all(found.fit.resolved)
+    assert found.warnings == ()  # the model explains the data to their noise
 
 
 def test_the_model_carries_std_bands_and_the_recording(commissioned):

@@ -81,3 +81,25 @@ def test_commissioning_from_scratch_finds_the_modes_and_the_delay(scanner_and_wi
     true = _truth(s).modal.parameters()
     z = [(model.modal.parameters()[n] - true[n]) / std[n] for n in true]
     assert max(abs(v) for v in z) < 4.5
+
+
+def test_a_measured_current_is_said_and_once_moved_a_sample_earlier_commissions():
+    """The amplifier's measured current, read when the encoder is: the current flowing over a
+    sample is the next sample's reading, which no delay of the model expresses. Commissioning
+    warns that the model fits far worse than the noise and says the current leads by a
+    sample; moved one sample earlier (``galvo-sysid import --current-lead 1``) the data give
+    the three modes."""
+    s = random_scanner(SEED)
+    data = simulate(s, angles=[0.3, 1.0], moves_per_angle=200, seed=1, current='measured')
+    windows = []
+    for angle in (0.3, -0.3, 1.0, -1.0):
+        pick = data['target_angle'] == angle
+        windows.append((data['current'][pick], data['encoder'][pick]))
+    found = commission(windows, sample_period=s.sample_period)
+    assert any('fits these data' in w for w in found.warnings)
+    assert any('leads the encoder by one sample' in w for w in found.warnings)
+    led = commission([(c[:, 1:], e[:, :-1]) for c, e in windows],
+                     sample_period=s.sample_period)
+    assert led.warnings == ()
+    assert led.model.n_modes == 3
+    np.testing.assert_allclose(led.model.modal.natural_frequencies, s.omegas, rtol=2e-3)
