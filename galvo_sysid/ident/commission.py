@@ -83,8 +83,11 @@ _MIN_SEPARATION = 1.08  # a new mode this close to a found one is the same mode
 INADEQUATE_CHI2 = 3.0
 """The pooled fit's chi2 per row (about 1 for a model that explains the data to their noise)
 above which commissioning warns that the model does not describe the data."""
-_LEAD_GAIN = 4.0  # the rigid body's chi2 this many times lower with the current one sample
-# earlier: the current record leads the encoder
+_LEAD_GAIN = 4.0
+"""The rigid body's chi2 this many times lower with the current one sample earlier: the
+current record leads the encoder."""
+_RIGID = ModalModel(k0=1.0, residues=(), natural_frequencies=(), damping_ratios=())
+"""The rigid body alone: the start of the order selection and of the lead's test."""
 _EVIDENCE = 25.0        # chi2 drop (5 sigma) a new mode needs before it is tried
 
 
@@ -344,12 +347,11 @@ def _adequacy(final: RefinedFit,
     out = [f'the model fits these data {ratio:.3g} times worse than their noise (chi2 per '
            f'row; about 1 for a model that explains them): its parameters and standard '
            f'deviations do not hold']
-    rigid = ModalModel(k0=1.0, residues=(), natural_frequencies=(), damping_ratios=())
 
     def rigid_chi2(records: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
                    delay: int) -> float:
         try:
-            fit = refine_joint(records, sample_period=t, initial=rigid,
+            fit = refine_joint(records, sample_period=t, initial=_RIGID,
                                dynamics=InputDynamics(computation_delay=delay,
                                                       lag_time_constant=0.5 * t),
                                bands=(), options=_OPTIONS)
@@ -406,11 +408,10 @@ def _bands(modal: ModalModel, lo: float, hi: float) -> tuple[tuple[float, float]
 def _rigid_body(fit: Callable[[ModalModel, int, float], RefinedFit], t: float) -> tuple[
         RefinedFit, int]:
     """The rigid body's best fit over the whole samples of delay, and its delay."""
-    rigid = ModalModel(k0=1.0, residues=(), natural_frequencies=(), damping_ratios=())
     fits = []
     for delay in range(_MAX_DELAY + 1):
         try:
-            fits.append((fit(rigid, delay, 0.5 * t), delay))
+            fits.append((fit(_RIGID, delay, 0.5 * t), delay))
         except GalvoSysidError:
             continue
     if not fits:
