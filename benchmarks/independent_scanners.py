@@ -43,7 +43,6 @@ import math
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 from typing import Any
 
@@ -115,10 +114,8 @@ def _scores(res: dict[str, Any], truth: dict[str, float]) -> tuple[list[float], 
 def one_scanner(seed: int, *, angles: list[float], moves: int, work: Path,
                 current: str = 'command') -> dict[str, Any]:
     """Simulate, import, identify and commission one scanner; its figures."""
-    t0 = time.perf_counter()
     s = random_scanner(seed)
     data = simulate(s, angles=angles, moves_per_angle=moves, seed=0, current=current)
-    sim_time = time.perf_counter() - t0
     npz, bag = work / f'moves_{seed}.npz', work / f'bag_{seed}'
     np.savez(npz, **data)
     imported = _run(['import', str(npz), '--out', str(bag)])
@@ -158,7 +155,7 @@ def one_scanner(seed: int, *, angles: list[float], moves: int, work: Path,
         modes += m
     pooled = report.get('pooled')
     z_pool = _scores(pooled, truth)[0] if pooled else []
-    return {'seed': seed, 'scanner': s, 'sim_time': sim_time, 'windows': len(report['windows']),
+    return {'seed': seed, 'scanner': s, 'windows': len(report['windows']),
             'mismatched': len(report.get('mismatched_windows') or []), 'z': z_all, 'e': e_all,
             'resolved': resolved, 'modes': modes, 'z_pool': z_pool,
             'commission': found, 'model_mismatch': report.get('model_mismatch'),

@@ -287,6 +287,7 @@ def import_bag(source: str | os.PathLike[str], out: str | os.PathLike[str], *,
     if storage not in {'mcap', 'sqlite3'}:
         msg = f'unknown storage {storage!r}: use mcap or sqlite3'
         raise ConfigurationError(msg)
+    _check_lead(current_lead)  # before reading a large file
     moves = lead_current(read_moves(source, format=format, sample_period=sample_period,
                                     target_angle=target_angle, max_bytes=max_bytes,
                                     check_travel=check_travel), current_lead)
@@ -313,9 +314,7 @@ def lead_current(moves: ImportedMoves, lead: int) -> ImportedMoves:
         ConfigurationError: ``lead`` is negative or not below 1000.
         InvalidDataError: A record would be left shorter than :data:`MIN_SAMPLES`.
     """
-    if isinstance(lead, bool) or not isinstance(lead, int) or not 0 <= lead < 1000:
-        msg = f'current lead must be a whole number of samples within 0..999, got {lead!r}'
-        raise ConfigurationError(msg)
+    _check_lead(lead)
     if not lead:
         return moves
     shortest = min(m.current.shape[0] for m in moves.moves)
@@ -326,6 +325,12 @@ def lead_current(moves: ImportedMoves, lead: int) -> ImportedMoves:
     return replace(moves, moves=tuple(replace(m, current=m.current[lead:],
                                               encoder=m.encoder[:-lead])
                                       for m in moves.moves))
+
+
+def _check_lead(lead: int) -> None:
+    if isinstance(lead, bool) or not isinstance(lead, int) or not 0 <= lead < 1000:
+        msg = f'current lead must be a whole number of samples within 0..999, got {lead!r}'
+        raise ConfigurationError(msg)
 
 
 def write_bag(out: str | os.PathLike[str], moves: ImportedMoves, *, storage: str = 'mcap',
