@@ -30,7 +30,10 @@ The result is a plant-model file (YAML) for the driver (a digital twin), the sys
 the watchdog (their parameter `model`), and for `galvo-sysid identify --model`.
 
 Record a few hundred moves of several sizes (e.g. 5 target angles x 200 moves); the moves
-must excite the resonances a little, as ordinary positioning moves do."""
+must excite the resonances a little, as ordinary positioning moves do. A current record that
+is the coil current measured when the encoder is read (not the DSP's command) is commissioned
+with --measured-current: the amplifier's lag is found, and identify takes the data with
+--measured-current LAG."""
 
 _EPILOG = """\
 examples:
@@ -57,6 +60,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help='most resonant modes looked for')
     p.add_argument('--window-size', type=positive(int), default=100, metavar='N',
                    help='moves per window (default: %(default)s, as the sysid node)')
+    p.add_argument('--measured-current', action='store_true',
+                   help="the bag's current is the coil current measured when the encoder is "
+                        "read (not the DSP's command): the amplifier lag is searched, and the "
+                        'model describes the held current made with it (identify then needs '
+                        '--measured-current LAG too)')
     p.add_argument('--namespace', metavar='NS',
                    help='scanner namespace when the bag holds several (e.g. /left)')
     return p
@@ -90,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
             print(f'commission: {text}', file=sys.stderr)
 
     found = commission_bag(args.bag, namespace=args.namespace, window_size=args.window_size,
-                           max_modes=args.max_modes, progress=progress)
+                           max_modes=args.max_modes, measured_current=args.measured_current,
+                           progress=progress)
     path = save_model(found.result.model, args.out)
     if args.plot:
         commission_figure(found).savefig(args.plot, dpi=120)

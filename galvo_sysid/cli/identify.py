@@ -91,6 +91,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         'the sysid node parameter na, 15')
     p.add_argument('--nb', type=positive(int), default=None, metavar='N',
                    help='ARX order of B[q]; default: the sysid node parameter nb, 15')
+    p.add_argument('--measured-current', type=float, default=None, metavar='LAG',
+                   help="the bag's current is the coil current measured when the encoder is "
+                        "read, behind the amplifier's lag LAG [s] (as `commission "
+                        "--measured-current` found it): each window's current is made into "
+                        'the held current that drives it')
     p.add_argument('--model', metavar='FILE', default=None,
                    help="plant-model file of the scanner (default: the sysid parameter model, "
                         "else the packaged model of the paper's scanner)")
@@ -142,6 +147,8 @@ def run(args: argparse.Namespace) -> int:
     for name in ('window_size', 'method', 'na', 'nb', 'model', 'warm_start'):
         if getattr(args, name) is not None:
             sysid[name] = getattr(args, name)
+    if args.measured_current is not None:  # as the sysid parameters current, its lag
+        sysid['current'], sysid['measured_current_lag'] = 'measured', args.measured_current
     model_path = sysid['model'] or ''
     if not isinstance(model_path, str):
         from galvo_sysid.errors import ConfigurationError
@@ -166,7 +173,9 @@ def run(args: argparse.Namespace) -> int:
                              windower=sysid, jobs=min(args.jobs or limit, limit),
                              pooling=args.pooling, model=model, model_path=model_path,
                              progress=progress, response_windows=16 if args.plot else 0,
-                             warm_start=bool(sysid['warm_start']))
+                             warm_start=bool(sysid['warm_start']),
+                             measured_lag=(sysid['measured_current_lag']
+                                           if sysid['current'] == 'measured' else None))
     finally:
         progress.close()
     if args.json:

@@ -111,6 +111,12 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         'measured when the encoder is read: 1); each current is moved N '
                         'samples earlier and the records shortened by N (commission says '
                         'when data look like this)')
+    p.add_argument('--measured-current', type=float, default=None, metavar='LAG',
+                   help='the current records are the coil current measured when the encoder '
+                        "is read, behind the amplifier's first-order lag of time constant LAG "
+                        '[s] (1 / (2 pi x its current-loop bandwidth); 0: none): each is '
+                        'turned into the held current that drives it, a sample shorter '
+                        '(commission then fits a lag near LAG if LAG is right)')
     p.add_argument('--no-travel-check', action='store_true',
                    help="do not check the encoder's travel against the target angles")
     return p
@@ -134,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
                          sample_period=args.sample_period, target_angle=args.target_angle,
                          storage=args.storage, max_bytes=args.max_bytes,
                          check_travel=not args.no_travel_check,
-                         current_lead=args.current_lead)
+                         current_lead=args.current_lead,
+                         measured_lag=args.measured_current)
     print(summary, file=sys.stderr)
     return 0

@@ -13,7 +13,7 @@ from __future__ import annotations
 import collections
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -72,6 +72,9 @@ class BagCommissioning:
             'set_aside': list(self.set_aside),
             'rejected_moves': self.rejected,
             'warnings': list(r.warnings),
+            'measured_current_lag': None if r.measured_lag is None else r.measured_lag.lag,
+            'lag_search': [] if r.measured_lag is None else
+            [{'assumed': a, 'fitted': f} for a, f in r.measured_lag.steps],
             'seconds': self.seconds,
         }
 
@@ -104,6 +107,7 @@ def _dwell(windows: list[Window], sample_period: float, samples: int) -> int:
 
 def commission_bag(bag: str | os.PathLike[str], *, namespace: str | None = None,
                    window_size: int = _SYSID['window_size'], max_modes: int = 6,
+                   measured_current: bool = False,
                    progress: Callable[[str], None] | None = None) -> BagCommissioning:
     """Commission the scanner whose moves a bag holds.
 
@@ -112,6 +116,9 @@ def commission_bag(bag: str | os.PathLike[str], *, namespace: str | None = None,
         namespace: Scanner namespace when the bag holds several.
         window_size: Moves per window; default: the sysid node's ``window_size`` (100).
         max_modes: Most resonant modes looked for.
+        measured_current: The bag's current is the coil current measured when the encoder
+            is read: the amplifier lag is searched and the model describes the held current
+            made with it (:func:`galvo_sysid.ident.commission.commission`).
         progress: Called with a line of text at each step.
 
     Returns:
@@ -144,9 +151,15 @@ def commission_bag(bag: str | os.PathLike[str], *, namespace: str | None = None,
                    f'{sum(w.moves for w in used)} moves, '
                    f'{len({w.target_angle for w in used})} target angles')
     result = commission([(w.current, w.encoder) for w in used], sample_period=period,
-                        max_modes=max_modes, record_length=samples,
+                        max_modes=max_modes, record_length=samples - int(measured_current),
                         dwell_length=_dwell(used, period, samples), description=description,
-                        progress=progress)
+                        measured_current=measured_current, progress=progress)
+    if result.measured_lag is not None:  # the file says which current it describes
+        note = (f'; its current: the held current made from the measured coil current with '
+                f'an amplifier lag of {result.measured_lag.lag:.6g} s (--measured-current '
+                f'{result.measured_lag.lag:.6g})')
+        result = replace(result, model=replace(result.model,
+                                               description=result.model.description + note))
     return BagCommissioning(bag=Path(bag), result=result, set_aside=set_aside,
                             rejected=rejected, seconds=time.perf_counter() - start)
 
@@ -193,6 +206,13 @@ def format_commissioning(found: BagCommissioning, *, out: str | None = None) -> 
                      'model is the rigid body alone, and monitoring with it judges k0 and the '
                      'lag only. Record faster moves, or add a dither at the resonances, to '
                      'commission the modes')
+    if r.measured_lag is not None:
+        lag = r.measured_lag.lag
+        lines += ['', f'measured current: amplifier lag {lag * 1e6:.4g} us ({lag / t:.3g} T), '
+                      f'found in {len(r.measured_lag.steps)} fits; the model describes the '
+                      f'held current made with it, behind no computation delay. Identify '
+                      f'with it: galvo-sysid identify BAG --model MODEL --measured-current '
+                      f'{lag:.6g} (or import files with --measured-current {lag:.6g})']
     lines += [f'  WARNING: {text}' for text in r.warnings]
     for text in found.set_aside:
         lines.append(f'  set aside: {text}')

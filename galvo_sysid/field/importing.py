@@ -9,7 +9,9 @@ log time the time of the move's first sample. Every tool then reads it (``identi
 ``commission``, ``discrepancy``, ``replay``, ``info``).
 
 Units: current [A] (the current command, as the DSP computes it; a coil current measured
-when the encoder is read leads it by a sample: ``current_lead``, :func:`lead_current`),
+when the encoder is read is turned into the held current that drives it, given the
+amplifier's lag: ``measured_lag``, :func:`held_from_measured`; or moved a sample earlier:
+``current_lead``, :func:`lead_current`),
 encoder [deg] (the raw angle; each record's first sample is its start angle), target angle
 [deg] (the signed commanded rotation of the move, e.g. +0.3 forward and -0.3 back), sample
 period [s], stamp [s].
@@ -112,6 +114,7 @@ __all__ = [
     'ImportSummary',
     'ImportedMove',
     'ImportedMoves',
+    'held_from_measured',
     'import_bag',
     'lead_current',
     'moves_from_arrays',
@@ -255,7 +258,8 @@ def import_bag(source: str | os.PathLike[str], out: str | os.PathLike[str], *,
                format: str | None = None, sample_period: float | None = None,
                target_angle: float | None = None, storage: str = 'mcap',
                max_bytes: int = MAX_BYTES, check_travel: bool = True,
-               frame_id: str = '', current_lead: int = 0) -> ImportSummary:
+               frame_id: str = '', current_lead: int = 0,
+               measured_lag: float | None = None) -> ImportSummary:
     """Read the moves of a CSV, .npz or .mat file and write them into a new bag.
 
     Args:
@@ -271,6 +275,10 @@ def import_bag(source: str | os.PathLike[str], out: str | os.PathLike[str], *,
         frame_id: Header frame id of the messages.
         current_lead: Samples by which the current record leads the encoder (see
             :func:`lead_current`); 0 as recorded.
+        measured_lag: The current records are the coil current measured when the encoder
+            is read, behind an amplifier lag of this time constant [s]: each is turned into
+            the held current that drives it (:func:`held_from_measured`); None: the current
+            is the command as recorded. Not with ``current_lead``.
 
     Raises:
         InvalidDataError: The file cannot be read or its data are refused (see the module
@@ -288,9 +296,19 @@ def import_bag(source: str | os.PathLike[str], out: str | os.PathLike[str], *,
         msg = f'unknown storage {storage!r}: use mcap or sqlite3'
         raise ConfigurationError(msg)
     _check_lead(current_lead)  # before reading a large file
+    if measured_lag is not None:
+        if current_lead:
+            msg = ('a measured current is aligned with its encoder by its amplifier lag: '
+                   'give the lag or a current lead, not both')
+            raise ConfigurationError(msg)
+        from galvo_sysid.ident.measured import check_lag
+
+        check_lag(measured_lag, sample_period)  # before reading a large file
     moves = lead_current(read_moves(source, format=format, sample_period=sample_period,
                                     target_angle=target_angle, max_bytes=max_bytes,
                                     check_travel=check_travel), current_lead)
+    if measured_lag is not None:
+        moves = held_from_measured(moves, lag=measured_lag)
     write_bag(path, moves, storage=storage, frame_id=frame_id)
     size = sum(p.stat().st_size for p in path.rglob('*') if p.is_file())
     lengths = [m.current.shape[0] for m in moves.moves]
@@ -325,6 +343,33 @@ def lead_current(moves: ImportedMoves, lead: int) -> ImportedMoves:
     return replace(moves, moves=tuple(replace(m, current=m.current[lead:],
                                               encoder=m.encoder[:-lead])
                                       for m in moves.moves))
+
+
+def held_from_measured(moves: ImportedMoves, *, lag: float) -> ImportedMoves:
+    """The moves with each measured coil current made into the held current that drives it.
+
+    A coil current read when the encoder is read, behind an amplifier lag of time constant
+    ``lag`` [s] (0: none), becomes the held current the model takes, behind no computation
+    delay and that lag (:func:`galvo_sysid.ident.measured.held_current`); each pair keeps
+    the samples both records still cover (a sample fewer), the stamp stays.
+    ``galvo-sysid commission --measured-current`` finds the lag where it is not known.
+
+    Raises:
+        ConfigurationError: A bad lag (:func:`~galvo_sysid.ident.measured.check_lag`).
+        InvalidDataError: A record would be left shorter than :data:`MIN_SAMPLES`.
+    """
+    from galvo_sysid.ident.measured import check_lag, held_current  # numerics when asked
+
+    t = moves.sample_period
+    check_lag(lag, t)
+    shortest = min(m.current.shape[0] for m in moves.moves)
+    if shortest - 1 < MIN_SAMPLES:
+        msg = (f'{moves.source}: a measured current leaves records of {shortest - 1} samples; '
+               f'identification needs at least {MIN_SAMPLES}')
+        raise InvalidDataError(msg)
+    held = [held_current(m.current, sample_period=t, lag=lag) for m in moves.moves]
+    return replace(moves, moves=tuple(replace(m, current=h, encoder=m.encoder[:-1])
+                                      for m, h in zip(moves.moves, held, strict=True)))
 
 
 def _check_lead(lead: int) -> None:

@@ -96,7 +96,8 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
                  model_path: str = '',
                  progress: Callable[[int, int], None] | None = None,
                  response_windows: int = 0,
-                 warm_start: bool = _SYSID['warm_start']) -> BagIdentification:
+                 warm_start: bool = _SYSID['warm_start'],
+                 measured_lag: float | None = None) -> BagIdentification:
     """Identify every window of moves in a bag (see the module docs for the path taken).
 
     Args:
@@ -133,11 +134,17 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
             for the plot).
         warm_start: Start each refined fit from the window two before (see the module docs);
             default: the sysid node's ``warm_start``.
+        measured_lag: The bag's current is the coil current measured when the encoder is
+            read, behind an amplifier lag of this time constant [s]: each window's current
+            is made into the held current that drives it, a sample shorter
+            (:func:`galvo_sysid.ident.measured.held_current`), before anything else; None:
+            the current is the command.
 
     Raises:
         BagError: Missing, corrupt or truncated bag, no galvo topics, wrong topic type.
         ConfigurationError: Unknown method or bad window settings.
     """
+    from galvo_sysid.ident.measured import check_lag
     from galvo_sysid.ident.warm import WarmStart
     from galvo_sysid.model import PAPER_MODEL
     from galvo_sysid.monitor.drift import DriftMonitor
@@ -145,6 +152,8 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
     from galvo_sysid.monitor.scheduler import WindowScheduler, fit_window
 
     plant = PAPER_MODEL if model is None else model
+    if measured_lag is not None:
+        measured_lag = check_lag(measured_lag, plant.sample_period)
 
     if method not in METHODS:
         msg = f'unknown method {method!r}; choose one of {", ".join(METHODS)}'
@@ -237,6 +246,8 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
                          start_method='fork', warm_up=False) as scheduler:
 
         def submit(window: Window) -> None:
+            if measured_lag is not None:
+                window = window.held(measured_lag)
             marks[window.index] = len(rejected)
             if chained:  # in window order, each once the window before it in its chain is done
                 held.append(window)

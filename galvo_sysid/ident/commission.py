@@ -26,6 +26,12 @@ moves instead (windows of moves of one target angle, as the sysid node collects 
    ``max_windows``), its covariance giving each parameter's standard deviation; bands
    around the modes.
 
+A coil current measured when the encoder is read (``measured_current``) is first made into
+the held current that drives it with no lag (the next reading) and commissioned; the amplifier
+lag is then searched (:func:`~galvo_sysid.ident.measured.search_lag`: the pooled fit of the
+selection's windows repeated on held currents made with trial lags until it finds the lag
+they were made with), and the held current made with it is commissioned afresh.
+
 The result (:class:`Commissioning`) holds the :class:`~galvo_sysid.model.plant.PlantModel`
 (with its uncertainty and bands, ready for the file), the measured response and the steps
 of the order selection; :mod:`galvo_sysid.field.commission` reads the bag and writes the file
@@ -37,11 +43,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from itertools import pairwise
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError, InvalidDataError
+from galvo_sysid.ident.measured import LagSearch, held_windows, search_lag
 from galvo_sysid.ident.preprocess import validate_records
 from galvo_sysid.ident.refine import (
     RefinedFit,
@@ -144,6 +151,8 @@ class Commissioning:
         warnings: What makes the model doubtful, one line each: it fits the data far worse
             than their noise (:data:`INADEQUATE_CHI2`), and why if that can be told (the
             current record leading the encoder by a sample).
+        measured_lag: With ``measured_current``: the amplifier lag the held current was made
+            with, and how it was found (the model describes that held current); else None.
     """
 
     model: PlantModel
@@ -154,6 +163,7 @@ class Commissioning:
     selection_windows: int
     rows: int
     warnings: tuple[str, ...] = ()
+    measured_lag: LagSearch | None = None
 
     @property
     def n_modes(self) -> int:
@@ -221,7 +231,7 @@ def commission(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period:
                max_modes: int = 6, search: tuple[float, float] | None = None,
                selection_windows: int = 8, max_windows: int = 64,
                record_length: int | None = None, dwell_length: int = 0,
-               description: str = '',
+               description: str = '', measured_current: bool = False,
                progress: Callable[[str], None] | None = None) -> Commissioning:
     """Learn the scanner's model from windows of its moves (see the module docs).
 
@@ -236,6 +246,11 @@ def commission(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period:
         record_length: Samples per record for the model file (default: the records').
         dwell_length: Samples between a record and the next move, for the model file.
         description: Free text for the model file.
+        measured_current: The current records are the coil current measured when the
+            encoder is read: the amplifier lag is searched (:func:`.measured.search_lag`:
+            commissioned as the next reading first, then the pooled model refitted to held
+            currents made with trial lags) and the model learnt from the held current made
+            with it (:func:`.measured.held_windows`), behind no computation delay.
         progress: Called with a line of text at each step.
 
     Returns:
@@ -251,13 +266,25 @@ def commission(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period:
     if not 1 <= int(max_modes) <= 16:
         raise ConfigurationError(f'max_modes must be within 1..16, got {max_modes}')
     records = _records(windows)
+    if measured_current:
+        return _commission_measured(records, t=t, max_modes=max_modes, search=search,
+                                    selection_windows=selection_windows,
+                                    max_windows=max_windows, record_length=record_length,
+                                    dwell_length=dwell_length, description=description,
+                                    say=say)
+    return _commission(records, t=t, max_modes=max_modes, search=search,
+                       selection_windows=selection_windows, max_windows=max_windows,
+                       record_length=record_length, dwell_length=dwell_length,
+                       description=description, say=say)
+
+
+def _commission(records: list[tuple[NDArray[np.float64], NDArray[np.float64]]], *, t: float,
+                max_modes: int, search: tuple[float, float] | None, selection_windows: int,
+                max_windows: int, record_length: int | None, dwell_length: int,
+                description: str, say: Callable[[str], None]) -> Commissioning:
+    """Commissioning of checked records (see :func:`commission`)."""
     n_samples = records[0][0].shape[1]
-    nyquist = math.pi / t
-    lo, hi = search if search is not None else (
-        2 * math.pi * max(300.0, 2.0 / (n_samples * t)), 0.95 * nyquist)
-    if not 0 < lo < hi <= nyquist:
-        raise ConfigurationError(f'search range {lo:.4g}..{hi:.4g} rad/s must lie below '
-                                 f'Nyquist ({nyquist:.4g} rad/s)')
+    lo, hi = _search_range(search, t, n_samples)
     chosen = _spread(records, selection_windows)
     filters = window_noise_filters(chosen)
     response = frequency_response(records, sample_period=t)
@@ -331,6 +358,59 @@ def commission(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period:
                          rows=rows, warnings=warnings)
 
 
+def _search_range(search: tuple[float, float] | None, t: float,
+                  n_samples: int) -> tuple[float, float]:
+    """The frequency range the modes are looked for in [rad/s] (see :func:`commission`)."""
+    nyquist = math.pi / t
+    lo, hi = search if search is not None else (
+        2 * math.pi * max(300.0, 2.0 / (n_samples * t)), 0.95 * nyquist)
+    if not 0 < lo < hi <= nyquist:
+        raise ConfigurationError(f'search range {lo:.4g}..{hi:.4g} rad/s must lie below '
+                                 f'Nyquist ({nyquist:.4g} rad/s)')
+    return lo, hi
+
+
+def _commission_measured(records: list[tuple[NDArray[np.float64], NDArray[np.float64]]], *,
+                         t: float, say: Callable[[str], None],
+                         **options: Any) -> Commissioning:
+    """Commissioning of measured currents: the amplifier lag searched, then the held current's.
+
+    The held current made with no lag (the next reading) is commissioned first; its order and
+    computation delay then stay while the pooled fit of the selection's windows is repeated
+    on held currents made with trial lags until the fit finds the lag they were made with;
+    the held current made with that lag is commissioned afresh.
+    """
+    say('measured current: commissioned as the next reading first, to find the amplifier lag')
+    first = _commission(held_windows(records, sample_period=t, lag=0.0), t=t, say=say,
+                        **options)
+    chosen = _spread(records, int(options['selection_windows']))
+    fit = first.fit
+    lo, hi = _search_range(options['search'], t, records[0][0].shape[1] - 1)
+
+    def fitted_lag(lag: float) -> float:
+        refit = refine_joint(held_windows(chosen, sample_period=t, lag=lag), sample_period=t,
+                             initial=fit.model,
+                             dynamics=InputDynamics(computation_delay=fit.computation_delay,
+                                                    lag_time_constant=fit.lag_time_constant),
+                             bands=_bands(fit.model, lo, hi), options=_OPTIONS)
+        say(f'  held current made with a lag of {lag / t:.3f} T: the fit finds '
+            f'{refit.lag_time_constant / t:.3f} T')
+        return refit.lag_time_constant
+
+    found = search_lag(fitted_lag, sample_period=t, upper=_LAG_BOUNDS[1] * t,
+                       first=(0.0, fit.lag_time_constant))
+    say(f'amplifier lag {found.lag / t:.3f} T ({found.lag * 1e6:.3g} us)'
+        + ('' if found.converged else ': the search did not settle'))
+    final = _commission(held_windows(records, sample_period=t, lag=found.lag), t=t, say=say,
+                        **options)
+    warnings = final.warnings
+    if not found.converged:
+        warnings += (f'the amplifier lag of the measured current did not settle (last '
+                     f'{found.lag / t:.3g} T, the fit finding '
+                     f'{found.steps[-1][1] / t:.3g} T): the held current may be wrong',)
+    return replace(final, warnings=warnings, measured_lag=found)
+
+
 def _adequacy(final: RefinedFit,
               chosen: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
               t: float) -> tuple[str, ...]:
@@ -364,12 +444,14 @@ def _adequacy(final: RefinedFit,
     if led * _LEAD_GAIN < as_is:
         out.append(f'the current record leads the encoder by one sample (the rigid body fits '
                    f'{as_is / led:.3g} times better with it one sample earlier: a measured '
-                   f'current sampled with the encoder?); import the data with '
-                   f'--current-lead 1 and commission again')
+                   f'current sampled with the encoder?); commission again with '
+                   f"--measured-current (the amplifier's lag is then found from the data)")
     else:
         out.append('the data hold dynamics the model cannot describe (a mode outside the '
                    'search range, friction, saturation, a current record not aligned with '
-                   'the encoder): galvo-sysid discrepancy compares a model with them')
+                   'the encoder): galvo-sysid discrepancy compares a model with them; a coil '
+                   'current measured when the encoder is read (not the command) is '
+                   'commissioned with --measured-current')
     return tuple(out)
 
 

@@ -8,7 +8,7 @@ of moves of one signed target angle, what the identification averages.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -92,6 +92,19 @@ class Window:
     def moves(self) -> int:
         """Number of moves in the window."""
         return len(self.move_ids)
+
+    def held(self, lag: float) -> Window:
+        """This window of measured coil currents with each made into the held current that
+        drives it, behind an amplifier lag of ``lag`` [s], against the encoder's samples but
+        the last (:func:`galvo_sysid.ident.measured.held_current`).
+
+        Raises:
+            ConfigurationError: A bad lag.
+        """  # noqa: D205
+        from galvo_sysid.ident.measured import held_current  # the numerics when asked
+
+        return replace(self, current=held_current(self.current, sample_period=self.sample_period,
+                                                  lag=lag), encoder=self.encoder[:, :-1])
 
 
 def too_long(signal: str, samples: int, limit: int) -> str:

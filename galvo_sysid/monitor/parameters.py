@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
 
 __all__ = [
+    'CURRENTS',
     'DECLARED_MODES',
     'DRIVER_PARAMETERS',
     'MAX_ANGLES',
@@ -49,6 +50,9 @@ __all__ = [
 
 RELIABILITY = ('reliable', 'best_effort')
 """Choices of the move topics' reliability (``qos_reliability`` parameters)."""
+
+CURRENTS = ('command', 'measured')
+"""What the current topic may carry (the sysid parameter ``current``)."""
 
 
 MAX_TEXT = 4096
@@ -299,6 +303,13 @@ SYSID_PARAMETERS = (
     ParamSpec('model', '', 'plant-model file of the scanner ("": the packaged model of the '
               "paper's scanner); read at start-up", read_only=True),
     *_WINDOWER_SPECS,
+    ParamSpec('current', 'command', "what the current topic carries: 'command' (the DSP's "
+              "current command) or 'measured' (the coil current read when the encoder is: "
+              'each window made into the held current that drives it, through '
+              'measured_current_lag)', choices=CURRENTS, read_only=True),
+    ParamSpec('measured_current_lag', 0.0, "the amplifier's lag time constant of a measured "
+              'current [s] (galvo-sysid commission --measured-current finds it)', 0.0, 0.1,
+              read_only=True),
     ParamSpec('method', 'refined', 'identification method', choices=METHODS),
     ParamSpec('na', 15, 'ARX order of A[q] (paper pipeline, also the refined start)', 2, 60),
     ParamSpec('nb', 15, 'ARX order of B[q] (paper pipeline, also the refined start)', 2, 60),

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.ident.measured import check_lag
 from galvo_sysid.ident.warm import WarmStart
 from galvo_sysid.model.files import model_label
 from galvo_sysid.monitor.moves import too_long
@@ -100,6 +101,13 @@ class SysidTask:
         fit_budget: Seconds from a window's completion past which its refined fit leaves out
             what it can do without (the weak modes' band profiles, reported unresolved; see
             :class:`~galvo_sysid.ident.refine.RefineOptions`' ``deadline``); 0: no budget.
+        measured_lag: The current halves are the coil current measured when the encoder is
+            read, behind an amplifier lag of this time constant [s]: each window is made into
+            the held current that drives it (:meth:`~galvo_sysid.monitor.moves.Window.held`)
+            before its fit; None: they are the command.
+
+    Raises:
+        ConfigurationError: A bad ``measured_lag`` (for the windower's sample period).
     """
 
     def __init__(self, fit: Callable[[Window], IdentificationResult],
@@ -107,8 +115,10 @@ class SysidTask:
                  windower: Mapping[str, Any] | None = None, queue_size: int = 8,
                  processes: int = 0, warnings_per_second: int = 20,
                  warm_start: bool = True, model_path: str | None = None,
-                 fit_budget: float = 0.0) -> None:
+                 fit_budget: float = 0.0, measured_lag: float | None = None) -> None:
         self.windower = MoveWindower(**dict(windower or {}))
+        self.measured_lag = None if measured_lag is None else check_lag(
+            measured_lag, self.windower.sample_period or None)
         self._warn = RateLimitedLog(warn, per_second=warnings_per_second)
         self._on_result = on_result
         self.model_path = model_path or ''
@@ -147,6 +157,8 @@ class SysidTask:
         self._report()
         for w in windows:
             self.windows_completed += 1
+            if self.measured_lag is not None:
+                w = w.held(self.measured_lag)
             for old in self.fitter.submit(self._started(w)):
                 self._warn(f'window {old.index} ({old.target_angle:g} deg, {old.moves} moves) '
                            'dropped: identification queue full (fits slower than input)',

@@ -99,7 +99,9 @@ class SysidNode(Node):
                               queue_size=v['queue_size'], processes=v['fit_processes'],
                               warnings_per_second=v['warnings_per_second'],
                               warm_start=v['warm_start'], model_path=v['model'],
-                              fit_budget=1e-3 * v['fit_budget_ms'])
+                              fit_budget=1e-3 * v['fit_budget_ms'],
+                              measured_lag=(v['measured_current_lag']
+                                            if v['current'] == 'measured' else None))
         qos = moves_qos(v['qos_depth'], reliability=v['qos_reliability'])
         # raw: the serialized bytes; the record's length is read before any sample is decoded.
         # In batches: the executor's every wait costs more than a half does (receiving.py).

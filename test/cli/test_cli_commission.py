@@ -7,6 +7,7 @@ import json
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import VENV_BIN
 
@@ -96,3 +97,50 @@ def test_commission_says_what_is_wrong_in_one_line(venv_bin: Path, tmp_path: Pat
     assert proc.returncode == 1
     assert 'no window of 100 moves' in proc.stderr
     assert not (tmp_path / 'm.yaml').exists()
+
+
+def test_a_measured_current_is_commissioned_and_identified_with_the_lag_found(
+        venv_bin: Path, tmp_path: Path) -> None:
+    """A bag whose current is the coil current measured with the encoder (scanner 1 of the
+    independent simulator: amplifier lag 0.78 T): plain commissioning warns and names the
+    option; ``--measured-current`` finds the lag, writes it into the model's description,
+    and ``identify --measured-current LAG`` places the mode within its std."""
+    from independent_scanner import random_scanner as independent_scanner
+    from independent_scanner import simulate
+
+    s = independent_scanner(1)
+    t = s.sample_period
+    data = simulate(s, angles=[0.3, 1.0], moves_per_angle=200, seed=2, current='measured')
+    np.savez(tmp_path / 'moves.npz', **data)
+    assert run(venv_bin, 'import', tmp_path / 'moves.npz', '--out',
+               tmp_path / 'bag').returncode == 0
+    plain = run(venv_bin, 'commission', tmp_path / 'bag', '--out', tmp_path / 'plain.yaml')
+    assert plain.returncode == 0, plain.stderr
+    assert 'WARNING' in plain.stdout
+    assert 'commissioned with --measured-current' in plain.stdout
+    proc = run(venv_bin, 'commission', tmp_path / 'bag', '--out', tmp_path / 'held.yaml',
+               '--measured-current', '--json')
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    lag = out['measured_current_lag']
+    assert lag == pytest.approx(s.lag, abs=0.04 * t)
+    assert out['lag_search'][-1]['fitted'] == pytest.approx(lag, abs=0.002 * t)
+    assert out['warnings'] == []
+    model = load_model(tmp_path / 'held.yaml')
+    assert (model.n_modes, model.dynamics.computation_delay) == (1, 0)
+    assert model.record_length == data['current'].shape[1] - 1
+    assert f'--measured-current {lag:.6g}' in model.description
+    ident = run(venv_bin, 'identify', tmp_path / 'bag', '--model', tmp_path / 'held.yaml',
+                '--measured-current', repr(lag), '--json')
+    assert ident.returncode == 0, ident.stderr
+    windows = json.loads(ident.stdout)['windows']
+    assert len(windows) == 4
+    for w in windows:
+        assert w['drift']['level'] == 'OK', w['drift']['message']
+        z = (w['natural_frequencies'][0] - s.omegas[0]) / w['natural_frequencies_std'][0]
+        assert abs(z) < 4.5
+    bad = run(venv_bin, 'identify', tmp_path / 'bag', '--model', tmp_path / 'held.yaml',
+              '--measured-current=-1e-6')
+    assert bad.returncode == 1
+    assert bad.stderr.count('\n') == 1
+    assert 'must be a time >= 0' in bad.stderr

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from galvo_sysid.field.commission import (
     format_commissioning,
 )
 from galvo_sysid.ident.commission import commission
+from galvo_sysid.ident.measured import LagSearch
 from galvo_sysid.sim.family import random_scanner
 from galvo_sysid.sim.simulator import GalvoSimulator
 
@@ -43,3 +45,16 @@ def test_a_model_without_modes_is_reported_with_the_reason_and_plotted() -> None
     assert json.loads(json.dumps(found.to_dict()))['model']['mechanics']['modes'] == []
     figure = commission_figure(found)
     assert figure.axes
+    # had the current been measured: the lag found, and how to identify with it
+    lag = LagSearch(lag=7e-6, steps=((0.0, 4e-6), (7e-6, 7e-6)), converged=True)
+    measured = replace(found, result=replace(result, measured_lag=lag))
+    text = format_commissioning(measured, out='scanner44.yaml')
+    t = scanner.model.sample_period
+    assert (f'measured current: amplifier lag 7 us ({7e-6 / t:.3g} T), found in 2 fits'
+            in text)
+    assert 'galvo-sysid identify BAG --model MODEL --measured-current 7e-06' in text
+    out = json.loads(json.dumps(measured.to_dict()))
+    assert out['measured_current_lag'] == 7e-6
+    assert out['lag_search'] == [{'assumed': 0.0, 'fitted': 4e-6},
+                                 {'assumed': 7e-6, 'fitted': 7e-6}]
+    assert found.to_dict()['measured_current_lag'] is None

@@ -20,6 +20,7 @@ from galvo_sysid.field.bags.atomic import PARTIAL_PREFIX
 from galvo_sysid.field.importing import (
     MAX_BYTES,
     MIN_SAMPLES,
+    held_from_measured,
     import_bag,
     lead_current,
     moves_from_arrays,
@@ -515,3 +516,52 @@ def test_a_current_that_leads_the_encoder_is_moved_earlier() -> None:
     for bad in (-1, 1000, True):
         with pytest.raises(ConfigurationError, match='current lead'):
             lead_current(moves, bad)
+
+
+def test_a_measured_current_is_turned_into_the_held_current_that_drives_it(
+        tmp_path: Path) -> None:
+    # an amplifier's current i follows its held input v with a first-order lag: sampled when
+    # the encoder is read, i[k + 1] = a i[k] + (1 - a) v[k]; the held input comes back
+    t, lag = 1e-5, 7e-6
+    a = np.exp(-t / lag)
+    rng = np.random.default_rng(3)
+    held = rng.normal(size=(2, 39))
+    cur = np.zeros((2, 40))
+    cur[:, 0] = rng.normal(size=2)
+    for k in range(39):
+        cur[:, k + 1] = a * cur[:, k] + (1 - a) * held[:, k]
+    enc = np.cumsum(np.full((2, 40), 0.01), axis=1)
+    moves = moves_from_arrays(cur, enc, sample_period=t, target_angle=0.3, stamp=[1.0, 2.0])
+    out = held_from_measured(moves, lag=lag)
+    for i in range(2):
+        np.testing.assert_allclose(out.moves[i].current, held[i], rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(out.moves[i].encoder, enc[i, :-1])
+    assert [m.stamp for m in out.moves] == [1.0, 2.0]
+    # no lag: the reading a sample later flowed over the sample, as a lead of one
+    for got, led in zip(held_from_measured(moves, lag=0.0).moves, lead_current(moves, 1).moves,
+                        strict=True):
+        np.testing.assert_array_equal(got.current, led.current)
+    for bad, needle in ((-1e-6, 'must be a time >= 0'), (float('nan'), 'must be a time >= 0'),
+                        (True, 'must be a time >= 0'),
+                        (3e-4, 'is 30 sample periods: above 20')):
+        with pytest.raises(ConfigurationError, match=needle):
+            held_from_measured(moves, lag=bad)
+    short = moves_from_arrays(cur[:, :32], enc[:, :32], sample_period=t, target_angle=0.3)
+    with pytest.raises(InvalidDataError, match='leaves records of 31 samples'):
+        held_from_measured(short, lag=lag)
+    # the importer: the held current in the bag, the lag checked before the file is read
+    source = tmp_path / 'm.npz'
+    np.savez(source, current=cur, encoder=enc, sample_period=t, target_angle=0.3)
+    summary = import_bag(source, tmp_path / 'b', measured_lag=lag)
+    assert summary.shortest == summary.longest == 39
+    with BagReader(summary.path) as reader:
+        halves = [h for h in reader.move_halves() if isinstance(h, MoveHalf)]
+    got = {(h.signal, h.move_id): h.data for h in halves}
+    for i in range(2):
+        np.testing.assert_allclose(got['current', i], held[i], rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(got['encoder', i], enc[i, :-1])
+    with pytest.raises(ConfigurationError, match='the lag or a current lead, not both'):
+        import_bag(tmp_path / 'missing.npz', tmp_path / 'c', measured_lag=lag, current_lead=1)
+    with pytest.raises(ConfigurationError, match='above 20'):
+        import_bag(tmp_path / 'missing.npz', tmp_path / 'c', measured_lag=1e-3,
+                   sample_period=1e-5)

@@ -573,3 +573,30 @@ def test_the_starts_kept_are_bounded_by_angles_and_by_record_lengths() -> None:
     newest = (1, 64 + n - 1)
     assert newest in task._by_sign
     assert (1, 64) not in task._by_sign  # the oldest forgotten
+
+
+def test_a_measured_current_is_made_held_before_the_fit() -> None:
+    # current: measured: each window reaches the fit as the held current behind the coil
+    # current (a sample shorter, the encoder too); a lag the sample period cannot take is
+    # refused when the task is made
+    from galvo_sysid.errors import ConfigurationError
+    from galvo_sysid.ident.measured import held_current
+
+    done = Collector()
+    done.expected = 1
+    task = SysidTask(lambda w: fake_result(w.target_angle, w.moves), done,
+                     warn=lambda _: None, windower={'window_size': 10, 'sample_period': 1e-5},
+                     measured_lag=6e-6)
+    items = halves_of(GalvoSimulator(seed=1), [0.3], 20)
+    raw = [w for h in items for w in task.add(h)]
+    assert done.event.wait(10)
+    task.close()
+    fitted = done.items[0].window
+    original = next(w for w in raw if w.index == fitted.index)
+    assert fitted.current.shape == (10, original.current.shape[1] - 1)
+    np.testing.assert_array_equal(
+        fitted.current, held_current(original.current, sample_period=1e-5, lag=6e-6))
+    np.testing.assert_array_equal(fitted.encoder, original.encoder[:, :-1])
+    with pytest.raises(ConfigurationError, match='above 20'):
+        SysidTask(lambda w: fake_result(), lambda o: None, warn=lambda _: None,
+                  windower={'sample_period': 1e-5}, measured_lag=1e-3)
