@@ -47,7 +47,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from galvo_sysid.errors import ConfigurationError, GalvoSysidError, InvalidDataError
+from galvo_sysid.errors import (
+    ConfigurationError,
+    GalvoSysidError,
+    InvalidDataError,
+    ModelMismatchError,
+)
 from galvo_sysid.ident.measured import LagSearch, held_windows, search_lag
 from galvo_sysid.ident.preprocess import validate_records
 from galvo_sysid.ident.refine import (
@@ -320,6 +325,7 @@ def _commission(records: list[tuple[NDArray[np.float64], NDArray[np.float64]]], 
         return f.chi2 + params * math.log(rows)
 
     steps = [OrderStep(modes=0, chi2=current.chi2, bic=bic(current), added=math.nan)]
+    kept = [current]  # the fit of each number of modes kept
     say(f'rigid body: computation delay {delay} sample(s), lag '
         f'{current.lag_time_constant / t:.2f} T, chi2/rows {current.chi2 / rows:.3g}')
     while current.model.n_modes < max_modes:
@@ -342,10 +348,22 @@ def _commission(records: list[tuple[NDArray[np.float64], NDArray[np.float64]]], 
             say(f'  computation delay now {delay} sample(s), lag '
                 f'{current.lag_time_constant / t:.2f} T, chi2/rows {current.chi2 / rows:.3g}')
         steps.append(step)
+        kept.append(current)
     else:
         steps[-1] = replace(steps[-1], note=f'stopped at max_modes={max_modes}')
     pooled_records = _spread(records, max_windows)
-    final = _pooled(pooled_records, current, lo, hi, t)
+    while True:  # a mode the pooled fit ends at its band's edge: the order below it
+        try:
+            final = _pooled(pooled_records, kept[-1], lo, hi, t)
+            break
+        except ModelMismatchError as err:
+            if len(kept) == 1:
+                raise
+            n = kept.pop().model.n_modes
+            j = max(j for j, st in enumerate(steps) if st.modes == n)
+            steps[j] = replace(steps[j], note=f'not kept: the pooled fit over every window '
+                                              f'said {err}')
+            say(f'{n} mode(s) not kept: the pooled fit said {err}')
     warnings = _adequacy(final, chosen, t)
     for text in warnings:
         say(f'warning: {text}')
@@ -377,28 +395,41 @@ def _commission_measured(records: list[tuple[NDArray[np.float64], NDArray[np.flo
 
     The held current made with no lag (the next reading) is commissioned first; its order and
     computation delay then stay while the pooled fit of the selection's windows is repeated
-    on held currents made with trial lags until the fit finds the lag they were made with;
-    the held current made with that lag is commissioned afresh.
+    on held currents made with trial lags until the fit finds the lag they were made with
+    (where a trial's fit fails, a mode the next reading needed ending at its band's edge, the
+    trial's held current is commissioned afresh and its model kept for the next trials); the
+    held current made with that lag is commissioned afresh.
     """
     say('measured current: commissioned as the next reading first, to find the amplifier lag')
     first = _commission(held_windows(records, sample_period=t, lag=0.0), t=t, say=say,
                         **options)
     chosen = _spread(records, int(options['selection_windows']))
-    fit = first.fit
     lo, hi = _search_range(options['search'], t, records[0][0].shape[1] - 1)
+    models = [first.fit]  # the latest model the trial fits start from
 
     def fitted_lag(lag: float) -> float:
-        refit = refine_joint(held_windows(chosen, sample_period=t, lag=lag), sample_period=t,
-                             initial=fit.model,
-                             dynamics=InputDynamics(computation_delay=fit.computation_delay,
-                                                    lag_time_constant=fit.lag_time_constant),
-                             bands=_bands(fit.model, lo, hi), options=_OPTIONS)
+        fit = models[-1]
+        try:
+            refit = refine_joint(
+                held_windows(chosen, sample_period=t, lag=lag), sample_period=t,
+                initial=fit.model, dynamics=InputDynamics(
+                    computation_delay=fit.computation_delay,
+                    lag_time_constant=fit.lag_time_constant),
+                bands=_bands(fit.model, lo, hi), options=_OPTIONS)
+        except GalvoSysidError as err:
+            # a mode the next reading needed is not in this held current (it ends at its
+            # band's edge): the modes are chosen again for it, and kept for the next trials
+            say(f'  held current made with a lag of {lag / t:.3f} T: {err}; its modes chosen '
+                f'again')
+            refit = _commission(held_windows(records, sample_period=t, lag=lag), t=t,
+                                say=say, **options).fit
+            models.append(refit)
         say(f'  held current made with a lag of {lag / t:.3f} T: the fit finds '
             f'{refit.lag_time_constant / t:.3f} T')
         return refit.lag_time_constant
 
     found = search_lag(fitted_lag, sample_period=t, upper=_LAG_BOUNDS[1] * t,
-                       first=(0.0, fit.lag_time_constant))
+                       first=(0.0, first.fit.lag_time_constant))
     say(f'amplifier lag {found.lag / t:.3f} T ({found.lag * 1e6:.3g} us)'
         + ('' if found.converged else ': the search did not settle'))
     final = _commission(held_windows(records, sample_period=t, lag=found.lag), t=t, say=say,
