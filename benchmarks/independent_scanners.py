@@ -114,10 +114,11 @@ def _scores(res: dict[str, Any], truth: dict[str, float]) -> tuple[list[float], 
 
 
 def one_scanner(seed: int, *, angles: list[float], moves: int, work: Path,
-                current: str = 'command') -> dict[str, Any]:
+                current: str = 'command', sensor_noise: float = 1e-3) -> dict[str, Any]:
     """Simulate, import, identify and commission one scanner; its figures."""
     s = random_scanner(seed)
-    data = simulate(s, angles=angles, moves_per_angle=moves, seed=0, current=current)
+    data = simulate(s, angles=angles, moves_per_angle=moves, seed=0, current=current,
+                    sensor_noise=sensor_noise)
     npz, bag = work / f'moves_{seed}.npz', work / f'bag_{seed}'
     np.savez(npz, **data)
     imported = _run(['import', str(npz), '--out', str(bag)])
@@ -196,11 +197,16 @@ def main() -> int:
                         help="what the current record holds: the controller's command "
                              "(default) or the amplifier's measured current (then identify "
                              'uses the commissioned model)')
+    parser.add_argument('--sensor-noise', type=float, default=1e-3, metavar='A',
+                        help="with --current measured: std of the current sensor's white noise "
+                             '[A] (default 1 mA)')
     args = parser.parse_args()
     seeds = args.seeds if args.seeds is not None else list(range(args.count))
     load = ', '.join(f'{x:.2f}' for x in os.getloadavg())
     print(f'independent scanners {seeds}: {args.moves_per_angle} moves at each of '
-          f'{args.angles} deg, current record: {args.current}; '
+          f'{args.angles} deg, current record: {args.current}'
+          + (f' (sensor noise {1e3 * args.sensor_noise:g} mA)'
+             if args.current == 'measured' and args.sensor_noise != 1e-3 else '') + '; '
           f'{datetime.datetime.now().isoformat(timespec="seconds")}, load average {load}\n')
     z_all: list[float] = []
     e_all: list[float] = []
@@ -214,7 +220,8 @@ def main() -> int:
     for seed in seeds:
         with tempfile.TemporaryDirectory(prefix='galvo_indep_') as tmp:
             r = one_scanner(seed, angles=args.angles, moves=args.moves_per_angle,
-                            work=Path(tmp), current=args.current)
+                            work=Path(tmp), current=args.current,
+                            sensor_noise=args.sensor_noise)
         s = r['scanner']
         if 'error' in r:
             print(f'{seed:>4} ERROR {r["error"][:160]}; {s.describe()}')
