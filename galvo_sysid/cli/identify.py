@@ -217,7 +217,10 @@ def format_identification(found: BagIdentification, *, absolute: bool = False) -
     span = (info.end - info.start) * 1e-9
     lines = [f'bag: {info.path} ({info.storage}), {found.moves:g} moves, {span:.2f} s; '
              f'method {found.method}, windows of {found.window_size} moves; model '
-             f'{found.model_name}',
+             f'{found.model_name}'
+             + ('' if found.measured_lag is None else
+                f'; current: measured, made held with an amplifier lag of '
+                f'{found.measured_lag:.6g} s'),
              *(f'note: {claim}' for claim in info.claims),
              '']
 

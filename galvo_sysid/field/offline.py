@@ -306,6 +306,7 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
                              model_mismatch=why, reference=judge.reference,
                              reference_name=judge.reference_name,
                              sample_period=plant.sample_period, dynamics=plant.dynamics,
+                             measured_lag=measured_lag,
                              warn_fraction=judge.warn_fraction,
                              response=_response(spectra, plant.sample_period))
 

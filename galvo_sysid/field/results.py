@@ -118,6 +118,8 @@ class BagIdentification:
         warn_fraction: The drift monitor's WARN threshold, as a fraction of each tolerance.
         response: The measured frequency response of the first windows' averaged moves, if
             asked for (``identify_bag(response_windows=...)``, for the plot; not in JSON).
+        measured_lag: The amplifier lag [s] the windows' measured currents were made into
+            held currents with (None: the current was the command).
     """
 
     info: BagInfo
@@ -139,6 +141,7 @@ class BagIdentification:
     dynamics: InputDynamics | None = None
     warn_fraction: float = 0.5
     response: FrequencyResponse | None = None
+    measured_lag: float | None = None
 
     @property
     def model_name(self) -> str:
@@ -147,7 +150,8 @@ class BagIdentification:
 
     def to_dict(self) -> dict[str, Any]:
         """The ``--json`` object: ``{"windows": [...], "pooled": {...}, "rejected": [...],
-        "model": ..., "model_mismatch": ..., "mismatched_windows": [...]}``.
+        "model": ..., "model_mismatch": ..., "mismatched_windows": [...],
+        "measured_current_lag": ...}``.
 
         ``pooled`` holds the result's fields plus ``pooling``, ``pooled_windows`` and
         ``pooling_note``; ``model_mismatch`` says why the data do not match the model (null
@@ -165,4 +169,5 @@ class BagIdentification:
             'model': self.model_name,
             'model_mismatch': self.model_mismatch,
             'mismatched_windows': [w.to_dict() for w in self.mismatched],
+            'measured_current_lag': self.measured_lag,
         }

@@ -208,6 +208,9 @@ class SysidNode(Node):
         scanner = scanner_name(self, self.params.values['hardware_id'])
         values = [(k, str(x)) for k, x in now.items()]
         values.append(('model', model_label(self.params.values['model'])))
+        lag = self.task.measured_lag
+        values.append(('current', 'command' if lag is None else
+                       f'measured, made held with an amplifier lag of {lag:.6g} s'))
         publish_diagnostic(self, self.diagnostics, name=f'{scanner}: identification',
                            hardware_id=scanner, level=level, message=message, values=values)
 

@@ -133,7 +133,9 @@ def test_a_measured_current_is_commissioned_and_identified_with_the_lag_found(
     ident = run(venv_bin, 'identify', tmp_path / 'bag', '--model', tmp_path / 'held.yaml',
                 '--measured-current', repr(lag), '--json')
     assert ident.returncode == 0, ident.stderr
-    windows = json.loads(ident.stdout)['windows']
+    report = json.loads(ident.stdout)
+    assert report['measured_current_lag'] == lag
+    windows = report['windows']
     assert len(windows) == 4
     for w in windows:
         assert w['drift']['level'] == 'OK', w['drift']['message']

@@ -114,3 +114,16 @@ def test_ros_arguments_still_reach_rclpy(tmp_path: Path) -> None:
     assert proc.returncode == 2
     assert proc.stderr.strip() == ("error: unknown ROS arguments ['--help'] (the usage: --help "
                                    'before --ros-args)')
+
+
+def test_a_measured_currents_lag_the_model_cannot_take_stops_the_start(tmp_path: Path) -> None:
+    """current:=measured with a lag of 1,000 sample periods of the model (1e-5 s): one line
+    naming it, exit code 2, before any move is taken."""
+    script = ('import sys\nfrom galvo_sysid.nodes.command_line import sysid\n'
+              'sys.argv = ["sysid", "--ros-args", "-p", "current:=measured", "-p", '
+              '"measured_current_lag:=0.01"]\nsys.exit(sysid())\n')
+    proc = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
+                          env=_env(tmp_path / 'log'), timeout=60, check=False)
+    assert proc.returncode == 2, proc.stderr
+    assert 'an amplifier lag of 0.01 s is 1e+03 sample periods: above 20' in proc.stderr
+    assert 'Traceback' not in proc.stderr
