@@ -63,11 +63,13 @@ def test_bad_lags_and_records_are_refused() -> None:
             check_lag(bad)  # type: ignore[arg-type]
     with pytest.raises(ConfigurationError, match='sample periods: above 20'):
         check_lag(21 * T, T)
-    with pytest.raises(InvalidDataError, match='2 samples or more'):
-        held_current(np.ones((4, 1)), sample_period=T, lag=T)
+    for short in (np.ones((4, 1)), 2.0):
+        with pytest.raises(InvalidDataError, match='2 samples or more'):
+            held_current(short, sample_period=T, lag=T)
+    assert held_current([1.0, 3.0], sample_period=T, lag=0.0).tolist() == [3.0]  # 2 samples
 
 
-@pytest.mark.parametrize('slope', [0.1, 0.5, 0.9])
+@pytest.mark.parametrize('slope', [0.1, 0.5, 0.9, 0.94])
 def test_the_search_finds_where_the_fit_agrees_with_the_lag(slope: float) -> None:
     # a fit that finds a lag between the assumed one and the truth, as commissioning's does
     truth = 0.77 * T
@@ -93,3 +95,12 @@ def test_a_lag_beyond_the_range_ends_at_the_bound_unsettled() -> None:
     search_lag(lambda lag: seen.append(lag) or 0.2 * T, sample_period=T, upper=T,
                first=(0.0, 0.2 * T))
     assert seen[0] == pytest.approx(0.2 * T)
+
+
+def test_a_search_that_does_not_settle_stops_after_its_most_steps() -> None:
+    # a fit whose lag jumps about the assumed one by 10 tolerances: never within it
+    steps = iter(range(100))
+    found = search_lag(lambda lag: lag + (-1) ** next(steps) * 0.01 * T, sample_period=T,
+                       upper=1.5 * T, first=(0.5 * T, 0.51 * T))
+    assert not found.converged
+    assert len(found.steps) == 1 + 12
