@@ -116,6 +116,11 @@ def _arguments(p: argparse.ArgumentParser, threshold: float,
     p.add_argument('--max-moves-per-angle', type=positive(int), default=None, metavar='N',
                    help='use at most N moves of each signed target angle (the first; '
                         'default: all)')
+    p.add_argument('--measured-current', type=finite_float, default=None, metavar='LAG',
+                   help="the bag's current is the coil current measured when the encoder is "
+                        "read, behind the amplifier's lag LAG [s] (as `commission "
+                        "--measured-current` found it): each move's current is made into the "
+                        'held current that drives it')
     p.add_argument('--namespace', metavar='NS',
                    help='scanner namespace when the bag holds several (e.g. /left)')
 
@@ -138,7 +143,8 @@ def run(args: argparse.Namespace) -> int:
 
     model = load_model(args.model)
     moves, rejected = read_moves(args.bag, namespace=args.namespace,
-                                 max_moves_per_angle=args.max_moves_per_angle)
+                                 max_moves_per_angle=args.max_moves_per_angle,
+                                 measured_lag=args.measured_current)
     verbose = not args.json and sys.stderr.isatty()
 
     def progress(text: str) -> None:

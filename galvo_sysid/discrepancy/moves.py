@@ -158,8 +158,8 @@ class MoveSet:
 
 
 def read_moves(bag: str | os.PathLike[str], *, namespace: str | None = None,
-               max_moves_per_angle: int | None = None,
-               min_moves: int = 3) -> tuple[MoveSet, list[dict[str, Any]]]:
+               max_moves_per_angle: int | None = None, min_moves: int = 3,
+               measured_lag: float | None = None) -> tuple[MoveSet, list[dict[str, Any]]]:
     """Read the moves of a bag (paired by move id like ``galvo-sysid identify``).
 
     Args:
@@ -168,6 +168,10 @@ def read_moves(bag: str | os.PathLike[str], *, namespace: str | None = None,
         max_moves_per_angle: Keep at most this many moves of each signed angle (the first).
         min_moves: Target angles with fewer usable moves are set aside (a noise floor needs
             at least 3).
+        measured_lag: The bag's current is the coil current measured when the encoder is
+            read, behind an amplifier lag of this time constant [s]: each move's current is
+            made into the held current that drives it, a sample shorter
+            (:meth:`~galvo_sysid.monitor.moves.Window.held`); None: the command.
 
     Returns:
         (moves, set-aside moves as JSON-ready dicts with a ``reason``).
@@ -196,6 +200,8 @@ def read_moves(bag: str | os.PathLike[str], *, namespace: str | None = None,
     rejected.extend(rejection_to_dict(r) for r in windower.pop_rejections())
     if not windows:
         raise InvalidDataError(f'no usable move in {bag}')
+    if measured_lag is not None:
+        windows = [w.held(measured_lag) for w in windows]
     # one record length and sample period: the most common (by moves); the rest set aside
     shares: dict[tuple[int, float], int] = {}
     for w in windows:

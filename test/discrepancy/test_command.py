@@ -51,3 +51,17 @@ def test_module_entry_point_help():
                          capture_output=True, text=True, check=True)
     assert 'unmodeled_resonance' in out.stdout
     assert '--report DIR' in out.stdout
+
+
+def test_a_measured_currents_lag_reaches_the_moves(tmp_path, capsys):
+    """``--measured-current LAG`` makes each move's current held before anything else: a lag
+    that cannot be one is refused in one line, before any fit."""
+    from galvo_sysid.cli.main import main
+    from galvo_sysid.field.simulate import simulate_bag
+
+    bag = tmp_path / 'plain'
+    simulate_bag(bag, angles=[0.3], moves_per_angle=6, seed=5)
+    assert main(['discrepancy', str(bag), '--measured-current=-1e-6']) == 1
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1
+    assert 'must be a time >= 0' in err

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from galvo_sysid.discrepancy import read_moves
@@ -29,6 +30,14 @@ def test_angles_with_too_few_moves_are_set_aside(tmp_path):
     assert 'noise floor needs 3' in rejected[0]['reason']
     with pytest.raises(InvalidDataError, match='no target angle has 9'):
         read_moves(path, min_moves=9)
+    # a measured current: each move's held current, a sample shorter (the encoder too)
+    from galvo_sysid.ident.measured import held_current
+
+    held, _ = read_moves(path, measured_lag=6e-6)
+    assert held.current.shape == (8, found.samples - 1)
+    np.testing.assert_array_equal(
+        held.current, held_current(found.current, sample_period=1e-5, lag=6e-6))
+    np.testing.assert_array_equal(held.encoder, found.encoder[:, :-1])
 
 
 def test_a_minority_record_length_is_set_aside(tmp_path):
