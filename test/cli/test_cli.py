@@ -102,7 +102,8 @@ def test_usage_error_exit_code(venv_bin: Path) -> None:
 
 def test_identify_json_contract(identified: dict) -> None:
     assert set(identified) == {'windows', 'pooled', 'rejected', 'model', 'model_mismatch',
-                               'mismatched_windows'}
+                               'mismatched_windows', 'measured_current_lag'}
+    assert identified['measured_current_lag'] is None  # the current is the command
     assert identified['model'] == 'paper_table1 (packaged)'
     assert identified['model_mismatch'] is None
     assert identified['mismatched_windows'] == []
