@@ -95,14 +95,19 @@ _MIN_SEPARATION = 1.08  # a new mode this close to a found one is the same mode
 INADEQUATE_CHI2 = 3.0
 """The pooled fit's chi2 per row (about 1 for a model that explains the data to their noise)
 above which commissioning warns that the model does not describe the data."""
-_LEAD_GAIN = 2.0
-"""The rigid body's chi2 this many times lower with the current one sample earlier: the
-current record leads the encoder. Checked whatever the pooled fit's chi2: a measured current
-can leave a chi2 per row below :data:`INADEQUATE_CHI2` by a model with spurious modes
-(independent scanners 40 and 43: 4 and 6 modes for 3 and 1, chi2 per row 1.4 and 2.8; their
-ratios 2.8 and 4.1). From a command the ratio stays near 1 or below (0.015-1.12 on 8
-independent and 8 family scanners): the current one sample earlier under no delay is the
-current as it is under one sample of delay, or worse."""
+_LEAD_GAIN = 4.0
+"""The rigid body's chi2 this many times lower with the current one sample earlier, where the
+pooled fit is inadequate (:data:`INADEQUATE_CHI2`): the current record leads the encoder."""
+_PINNED_LEAD_GAIN = 2.0
+"""The same where the pooled fit ends at no delay and no lag (it asks for less than none):
+said whatever its chi2. A measured current can leave a chi2 per row below
+:data:`INADEQUATE_CHI2` by a model with spurious modes (independent scanners 40 and 43: 4 and
+6 modes for 3 and 1, chi2 per row 1.4 and 2.8, delay 0 and lag 0; their ratios 2.8 and 4.1),
+while from a command the ratio stays at or below 1.12 (8 independent and 8 family scanners).
+Not asked of every fit: a held current of scanner 43 (no delay, lag 0.43 T, fitted right)
+gave a ratio above 2 (the rigid body alone, its mode left out)."""
+_PINNED_LAG = 0.02
+"""A fitted lag at most this many sample periods counts as none (its bound is 0)."""
 _RIGID = ModalModel(k0=1.0, residues=(), natural_frequencies=(), damping_ratios=())
 """The rigid body alone: the start of the order selection and of the lead's test."""
 _EVIDENCE = 25.0        # chi2 drop (5 sigma) a new mode needs before it is tried
@@ -160,7 +165,8 @@ class Commissioning:
         rows: Residual rows of the selection fits (for the criterion).
         warnings: What makes the model doubtful, one line each: it fits the data far worse
             than their noise (:data:`INADEQUATE_CHI2`), and why if that can be told; the
-            current record leading the encoder by a sample (said whatever the fit's chi2).
+            current record leading the encoder by a sample (said also under that chi2 where
+            the fit ends at no delay and no lag).
         measured_lag: With ``measured_current``: the amplifier lag the held current was made
             with, and how it was found (the model describes that held current); else None.
     """
@@ -456,11 +462,14 @@ def _adequacy(final: RefinedFit,
     A current record that leads the encoder by a sample (a measured coil current sampled at
     the encoder's instant: the current flowing over a sample period is the next sample's,
     which no delay of the model can express) is told by the rigid body fitting
-    :data:`_LEAD_GAIN` times better with the current one sample earlier, whatever the
-    pooled fit's chi2.
+    :data:`_LEAD_GAIN` times better with the current one sample earlier; where the pooled
+    fit ends at no delay and no lag, :data:`_PINNED_LEAD_GAIN` times, whatever its chi2.
     """  # noqa: D205
     ratio = final.chi2 / max(final.rows, 1)
     inadequate = ratio > INADEQUATE_CHI2
+    pinned = final.computation_delay == 0 and final.lag_time_constant <= _PINNED_LAG * t
+    if not (inadequate or pinned):
+        return ()
     out = [f'the model fits these data {ratio:.3g} times worse than their noise (chi2 per '
            f'row; about 1 for a model that explains them): its parameters and standard '
            f'deviations do not hold'] if inadequate else []
@@ -478,7 +487,7 @@ def _adequacy(final: RefinedFit,
 
     as_is = min(rigid_chi2(chosen, d) for d in range(2))
     led = rigid_chi2([(c[:, 1:], e[:, :-1]) for c, e in chosen], 0)
-    if led * _LEAD_GAIN < as_is:
+    if led * (_PINNED_LEAD_GAIN if pinned else _LEAD_GAIN) < as_is:
         out.append(f'the current record leads the encoder by one sample (the rigid body fits '
                    f'{as_is / led:.3g} times better with it one sample earlier: a measured '
                    f'current sampled with the encoder?); commission again with '

@@ -148,8 +148,9 @@ def test_a_measured_current_commissions_to_the_truth_with_the_lag_it_finds():
 
 def test_a_measured_current_is_said_even_where_spurious_modes_hide_the_misfit():
     """Scanner 40's measured current, as recorded: the order selection soaks the misfit up
-    with spurious modes (4 for 3, chi2 per row 1.4, under the inadequacy warning's 3), so
-    only the rigid body's lead test can tell; it says so, and names the way out."""
+    with spurious modes (4 for 3, chi2 per row 1.4, under the inadequacy warning's 3), and
+    the fit ends at no delay and no lag; the rigid body's lead test, asked because of that,
+    says so and names the way out."""
     s = random_scanner(40)
     data = simulate(s, angles=[0.1, 0.3, 1.0], moves_per_angle=200, seed=0, current='measured')
     windows = []
@@ -158,6 +159,8 @@ def test_a_measured_current_is_said_even_where_spurious_modes_hide_the_misfit():
         windows.append((data['current'][pick], data['encoder'][pick]))
     found = commission(windows, sample_period=s.sample_period)
     assert found.fit.chi2 / found.fit.rows < 3.0
+    assert found.model.dynamics.computation_delay == 0
+    assert found.model.dynamics.lag_time_constant < 1e-3 * s.sample_period
     assert len(found.warnings) == 1
     assert found.warnings[0].startswith('the current record leads the encoder by one sample')
     assert 'commission again with --measured-current' in found.warnings[0]
