@@ -102,9 +102,10 @@ def test_commission_says_what_is_wrong_in_one_line(venv_bin: Path, tmp_path: Pat
 def test_a_measured_current_is_commissioned_and_identified_with_the_lag_found(
         venv_bin: Path, tmp_path: Path) -> None:
     """A bag whose current is the coil current measured with the encoder (scanner 1 of the
-    independent simulator: amplifier lag 0.78 T): plain commissioning warns and names the
-    option; ``--measured-current`` finds the lag, writes it into the model's description,
-    and ``identify --measured-current LAG`` places the mode within its std."""
+    independent simulator: amplifier lag 0.78 T): plain commissioning warns, says the current
+    leads the encoder and names the option; ``--measured-current`` finds the lag, writes it
+    into the model's description, and ``identify --measured-current LAG`` places the mode
+    within its std."""
     from independent_scanner import random_scanner as independent_scanner
     from independent_scanner import simulate
 
@@ -117,7 +118,9 @@ def test_a_measured_current_is_commissioned_and_identified_with_the_lag_found(
     plain = run(venv_bin, 'commission', tmp_path / 'bag', '--out', tmp_path / 'plain.yaml')
     assert plain.returncode == 0, plain.stderr
     assert 'WARNING' in plain.stdout
-    assert 'commissioned with --measured-current' in plain.stdout
+    # the fit as recorded ends at no delay and no lag: the rigid body's lead test names it
+    assert 'the current record leads the encoder by one sample' in plain.stdout
+    assert 'commission again with --measured-current' in plain.stdout
     proc = run(venv_bin, 'commission', tmp_path / 'bag', '--out', tmp_path / 'held.yaml',
                '--measured-current', '--json')
     assert proc.returncode == 0, proc.stderr
