@@ -20,9 +20,9 @@ every 10th window, so a fit started from the previous window of its angle (the n
 - latency per window, from the publication of its last move to the arrival of its result
   here (median, p99, max), results matched to windows by their stamps; and the same without
   each angle's first window of each sign (with the warm start, the only ones not started from
-  the previous window of their angle: the very first of each sign afresh, the others from the
-  latest result of their sign; what a long run converges to), and those first windows'
-  latencies;
+  the previous window of their angle: the very first of each sign from the model file, the
+  others from the latest result of their sign; what a long run converges to), and those first
+  windows' latencies;
 - where the CPU went from the first move to the last result: the node's own process (its
   executor and message handling), its fit processes (and the CPU per window), and this
   process (the publisher thread and the result listener), each as a share of one CPU; the
@@ -241,7 +241,7 @@ def _measure(args: argparse.Namespace, node: Any, executor: SingleThreadedExecut
     text = log_path.read_text(errors='replace')
     c = last_counters(text)
     latencies = [arrivals[k] - t for k, t in completes.items() if k in arrivals]
-    # every angle's first window (both signs) starts afresh or from another angle, the others
+    # every angle's first window (both signs) starts from the model or another angle, the others
     # from the previous window of their angle: the latency once each angle has had its first
     # window
     firsts = set(sorted(completes, key=completes.__getitem__)[:2 * len(args.angles)])
@@ -335,7 +335,7 @@ def main() -> int:
         ('windows expected / results (full)',
          f'{r["windows_expected"]} / {r["windows_received"]} ({r["windows_full"]})'),
         ('  of the windows identified, fits started from an earlier result (of the angle, or '
-         'of the sign)',
+         'of the sign) or from the model file',
          f'{r["warm"]} of {r["identified"]}'),
         ('  of those, fits cut short at fit_budget_ms (weak modes not profiled)',
          f'{r["cut"]} (budget: {f"{args.fit_budget_ms:g} ms" if args.fit_budget_ms else "none"})'),

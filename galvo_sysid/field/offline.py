@@ -23,7 +23,8 @@ methods the pooled estimate is the inverse-variance combination.
 
 With the refined method each window's fit starts from the result of the window two before it
 (:data:`WARM_CHAINS` chains of windows, :mod:`galvo_sysid.ident.warm`: its estimate and
-noise model; afresh for the first window of each chain, after a window that was not
+noise model; the first window of each chain from the model file's modes,
+:func:`~galvo_sysid.ident.warm.reference_start`; afresh after a window that was not
 identified, and where the start gives a fit whose cost the noise does not allow), as the sysid
 node's ``warm_start`` does with the previous window of the angle: the moves usually alternate
 between the signs, so this is the previous window of the same sign, another angle of the
@@ -145,7 +146,7 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
         ConfigurationError: Unknown method or bad window settings.
     """
     from galvo_sysid.ident.measured import check_lag
-    from galvo_sysid.ident.warm import WarmStart
+    from galvo_sysid.ident.warm import WarmStart, reference_start
     from galvo_sysid.model import PAPER_MODEL
     from galvo_sysid.monitor.drift import DriftMonitor
     from galvo_sysid.monitor.pairing import MoveWindower
@@ -197,7 +198,8 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
     chained = bool(warm_start) and method == 'refined'
     held: collections.deque[Window] = collections.deque()  # waiting for their chain
     busy: set[int] = set()  # chains with a window being fitted
-    starts: dict[int, WarmStart] = {}  # chain -> the start of its next window
+    # chain -> the start of its next window: at first the model's; none after a failure
+    starts: dict[int, WarmStart] = dict.fromkeys(range(WARM_CHAINS), reference_start(plant))
 
     def handle(outcome: FitOutcome) -> None:
         """Judge one window's outcome (called in window order)."""

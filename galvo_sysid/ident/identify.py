@@ -252,7 +252,7 @@ def _warm_fit(cur: NDArray[np.float64], enc: NDArray[np.float64], t: float, warm
         fit = refine_fit(cur, enc, sample_period=t, initial=warm.start(reference), bands=bands,
                          dynamics=dynamics, estimate_lag=estimate_lag,
                          options=replace(tuning, keep_initial_damping=True, scan_points=0,
-                                         search_unplaced=False),
+                                         search_unplaced=warm.from_model),
                          noise_model=warm.noise_model)
     except GalvoSysidError:
         return None

@@ -37,8 +37,9 @@ from galvo_sysid.model.modal import ModalModel
 if TYPE_CHECKING:
     from galvo_sysid.ident.refine.whitener import NoiseModel
     from galvo_sysid.ident.result import IdentificationResult
+    from galvo_sysid.model import PlantModel
 
-__all__ = ['WARM_CHI2_Z', 'WarmStart', 'plausible']
+__all__ = ['WARM_CHI2_Z', 'WarmStart', 'plausible', 'reference_start']
 
 WARM_CHI2_Z = 5.0
 """A warm-started fit is kept when its cost (in noise units) exceeds its rows by at most this
@@ -55,12 +56,17 @@ class WarmStart:
         lag_time_constant: Its amplifier lag [s] (the start, when the lag is estimated).
         noise_model: Its stationary noise model (None: estimated anew).
         resolved: Per mode, whether the previous window resolved it (empty: all).
+        from_model: The start is a model file's (:func:`reference_start`), no fit to data: a
+            weakly excited mode is then moved to the better basin its band profile finds even
+            where that basin would not place it either, as a fit afresh does (the model's
+            frequency may be far from the plant's since it drifted).
     """
 
     model: ModalModel
     lag_time_constant: float
     noise_model: NoiseModel | None = None
     resolved: tuple[bool, ...] = ()
+    from_model: bool = False
 
     def start(self, reference: ModalModel) -> ModalModel:
         """The model the fit starts from: the previous estimate, each mode it did not resolve
@@ -87,6 +93,17 @@ class WarmStart:
             return None
         return cls(model=result.model, lag_time_constant=float(result.lag_time_constant),
                    noise_model=result.noise_model, resolved=tuple(result.resolved))
+
+
+def reference_start(model: PlantModel) -> WarmStart:
+    """The start of a window no earlier result of the same plant precedes: the scanner's
+    model file itself (its modes and amplifier lag; the noise model estimated anew).
+
+    Its fit is kept as a warm fit's is, only if its cost is what the noise allows
+    (:func:`plausible`): a plant far from its model is fitted afresh.
+    """  # noqa: D205
+    return WarmStart(model=model.modal, lag_time_constant=model.physics().lag_time_constant,
+                     from_model=True)
 
 
 def plausible(chi2: float, rows: int) -> bool:

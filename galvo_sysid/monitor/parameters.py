@@ -314,8 +314,8 @@ SYSID_PARAMETERS = (
     ParamSpec('na', 15, 'ARX order of A[q] (paper pipeline, also the refined start)', 2, 60),
     ParamSpec('nb', 15, 'ARX order of B[q] (paper pipeline, also the refined start)', 2, 60),
     ParamSpec('warm_start', True, "start each window's refined fit from the previous window "
-              'of its angle, or of its sign where the angle has none yet (refitted afresh '
-              'where that fit is not plausible)'),
+              'of its angle, or of its sign where the angle has none yet, or from the model '
+              'file where neither has (refitted afresh where that fit is not plausible)'),
     ParamSpec('fit_budget_ms', 0.0, "milliseconds from a window's completion past which its "
               "refined fit leaves out the weakly excited modes' band profiles (those modes "
               'reported unresolved, the window counted in windows_cut_short; 0: no budget)',

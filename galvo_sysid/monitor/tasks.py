@@ -94,8 +94,12 @@ class SysidTask:
         processes: Child processes for the fits (0: fit on a worker thread).
         warnings_per_second: Most warning lines a second.
         warm_start: Start each window's refined fit from the latest result of its angle and
-            record length, or of its sign where the angle has none yet
-            (:mod:`galvo_sysid.ident.warm`).
+            record length, or of its sign where the angle has none yet, or from
+            ``reference`` where neither has (:mod:`galvo_sysid.ident.warm`).
+        reference: The start of a window without an earlier result of its angle or sign
+            (:func:`~galvo_sysid.ident.warm.reference_start`: the model file's modes), used
+            while the latest finished window did not fail or mismatch; None: such a window
+            is fitted afresh.
         model_path: The plant-model file the fits use ('' or None: the packaged paper
             model), for the messages.
         fit_budget: Seconds from a window's completion past which its refined fit leaves out
@@ -115,7 +119,8 @@ class SysidTask:
                  windower: Mapping[str, Any] | None = None, queue_size: int = 8,
                  processes: int = 0, warnings_per_second: int = 20,
                  warm_start: bool = True, model_path: str | None = None,
-                 fit_budget: float = 0.0, measured_lag: float | None = None) -> None:
+                 fit_budget: float = 0.0, measured_lag: float | None = None,
+                 reference: WarmStart | None = None) -> None:
         self.windower = MoveWindower(**dict(windower or {}))
         self.measured_lag = None if measured_lag is None else check_lag(
             measured_lag, self.windower.sample_period or None)
@@ -136,13 +141,15 @@ class SysidTask:
         self.warm_start = bool(warm_start)
         self.windows_warm = 0
         """Windows identified by a fit started from an earlier result (of their angle, or
-        of their sign)."""
+        of their sign) or from ``reference``."""
         self.fit_budget = float(fit_budget)
         self.windows_cut_short = 0
         """Windows whose fit passed its budget and left out the weak modes' profiles."""
         self._starts: OrderedDict[tuple[int, int], WarmStart] = OrderedDict()
         # the latest result of each sign and record length: where an angle has none yet
         self._by_sign: OrderedDict[tuple[int, int], WarmStart] = OrderedDict()
+        self.reference = reference
+        self._reference_usable = True  # False from a failed or mismatched window on
 
     def add(self, half: MoveHalf) -> list[Window]:
         """Take one half; queue the windows it completed (returned) and report rejections."""
@@ -167,7 +174,8 @@ class SysidTask:
 
     def clear_starts(self) -> None:
         """Forget the results the next windows would start from (the next fit of each angle
-        searches afresh): after a reset, or new window or fit settings."""  # noqa: D205, D209
+        starts from ``reference``, or searches afresh): after a reset, or new window or fit
+        settings."""  # noqa: D205, D209
         with self._lock:
             self._starts.clear()
             self._by_sign.clear()
@@ -182,8 +190,9 @@ class SysidTask:
     def _started(self, w: Window) -> Window:
         """``w`` with the start its fit takes (the latest result of its angle; for an angle
         without one yet, the latest of its sign and record length: another angle of the same
-        plant, as ``galvo-sysid identify``'s warm chains start), if any, and its deadline
-        (``fit_budget`` from now), if any."""  # noqa: D205, D209
+        plant, as ``galvo-sysid identify``'s warm chains start; for a sign without one either,
+        ``reference`` unless the latest finished window failed or mismatched), if any, and its
+        deadline (``fit_budget`` from now), if any."""  # noqa: D205, D209
         if self.fit_budget > 0:
             w = replace(w, deadline=time.monotonic() + self.fit_budget)
         if not self.warm_start:
@@ -192,6 +201,8 @@ class SysidTask:
             start = self._starts.get(self._start_key(w))
             if start is None:
                 start = self._by_sign.get(self._sign_key(w))
+            if start is None and self._reference_usable:
+                start = self.reference
         return w if start is None else replace(w, warm_start=start)
 
     def set_aside(self, text: str) -> None:
@@ -263,6 +274,7 @@ class SysidTask:
             else:  # a failed or mismatched window: the next of its angle searches afresh
                 self._starts.pop(key, None)
                 self._by_sign.pop(self._sign_key(w), None)
+            self._reference_usable = outcome.result is not None
             if outcome.result is not None:
                 self.windows_warm += outcome.result.warm_started
                 self.windows_cut_short += outcome.result.cut_short

@@ -30,6 +30,7 @@ from galvo_sysid_msgs.msg import ModalParameters, MoveSamples
 from rclpy.node import Node
 
 from galvo_sysid.errors import GalvoSysidError, one_line
+from galvo_sysid.ident.warm import reference_start
 from galvo_sysid.interfaces.messages import (
     fill,
     fill_header,
@@ -101,7 +102,8 @@ class SysidNode(Node):
                               warm_start=v['warm_start'], model_path=v['model'],
                               fit_budget=1e-3 * v['fit_budget_ms'],
                               measured_lag=(v['measured_current_lag']
-                                            if v['current'] == 'measured' else None))
+                                            if v['current'] == 'measured' else None),
+                              reference=reference_start(self.model))
         qos = moves_qos(v['qos_depth'], reliability=v['qos_reliability'])
         # raw: the serialized bytes; the record's length is read before any sample is decoded.
         # In batches: the executor's every wait costs more than a half does (receiving.py).

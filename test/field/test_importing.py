@@ -29,6 +29,7 @@ from galvo_sysid.field.importing import (
 from galvo_sysid.field.offline import identify_bag
 from galvo_sysid.ident import identify_joint, identify_window
 from galvo_sysid.ident.pool import pool_results
+from galvo_sysid.ident.warm import reference_start
 from galvo_sysid.model import PAPER_MODEL
 from galvo_sysid.monitor.moves import MoveHalf
 from galvo_sysid.monitor.pairing import MoveWindower
@@ -86,11 +87,13 @@ def simulated() -> dict[str, Any]:
 
 @pytest.fixture(scope='module')
 def direct(simulated: dict[str, Any]) -> dict[str, IdentificationResult]:
-    """The arrays identified directly, as identify_bag does with a bag's windows."""
+    """The arrays identified directly, as identify_bag does with a bag's windows (the first
+    window of each of its chains started from the model's modes)."""
     cur, enc = simulated['current'], simulated['encoder']
     windows = {sign * ANGLE: (cur[i::2], enc[i::2]) for i, sign in enumerate((1, -1))}
     out = {f'{angle:+g}': identify_window(c, e, sample_period=PERIOD, target_angle=angle,
-                                          model=PAPER_MODEL, na=15, nb=15)
+                                          model=PAPER_MODEL, na=15, nb=15,
+                                          warm_start=reference_start(PAPER_MODEL))
            for angle, (c, e) in windows.items()}
     combined = pool_results(list(out.values()))
     out['pooled'] = identify_joint(list(windows.values()), sample_period=PERIOD,

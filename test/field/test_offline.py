@@ -34,19 +34,21 @@ def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.mark.parametrize('warm', [True, False])
 def test_same_as_the_node_objects_by_hand(bag: Path, warm: bool) -> None:
     """The sysid node's objects in its order; with the warm start (the default) each refined
-    fit starts from the result of the window two before it (WARM_CHAINS), without it every
-    fit searches afresh."""
+    fit starts from the result of the window two before it (WARM_CHAINS), the first of each
+    chain from the model file's modes; without it every fit searches afresh."""
     from dataclasses import replace
 
     from galvo_sysid.field.offline import WARM_CHAINS
-    from galvo_sysid.ident.warm import WarmStart
+    from galvo_sysid.ident.warm import WarmStart, reference_start
+    from galvo_sysid.model import PAPER_MODEL
 
     found = identify_bag(bag, warm_start=warm)
     # the sysid node's path, spelled out: MoveWindower -> fit_window -> DriftMonitor
     windower = MoveWindower(window_size=100)
     monitor = DriftMonitor()
     expected = []
-    starts: dict[int, WarmStart | None] = {}
+    starts: dict[int, WarmStart | None] = dict.fromkeys(range(WARM_CHAINS),
+                                                         reference_start(PAPER_MODEL))
     with BagReader(bag) as reader:
         for half in reader.move_halves():
             assert not isinstance(half, SetAside)
@@ -62,8 +64,8 @@ def test_same_as_the_node_objects_by_hand(bag: Path, warm: bool) -> None:
     for w, (_, result, verdict) in zip(found.windows, expected, strict=True):
         assert w.result == result
         assert w.drift == verdict
-    # the first window of each chain afresh, the others from the window two before
-    assert [w.result.warm_started for w in found.windows] == [False, False, warm, warm]
+    # the first window of each chain from the model, the others from the window two before
+    assert [w.result.warm_started for w in found.windows] == [warm] * 4
 
 
 def test_the_warm_start_moves_no_estimate_by_more_than_a_fraction_of_its_std(
@@ -89,7 +91,7 @@ def test_the_warm_start_moves_no_estimate_by_more_than_a_fraction_of_its_std(
 def test_a_window_not_identified_starts_its_chain_afresh(
         bag: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A window whose fit failed leaves the next window of its chain to search afresh; the
-    other chain goes on from its own results."""
+    other chain goes on from its own results (its first window from the model's)."""
     import galvo_sysid.monitor.scheduler as scheduler_module
 
     seen: dict[int, bool] = {}
@@ -103,7 +105,7 @@ def test_a_window_not_identified_starts_its_chain_afresh(
 
     monkeypatch.setattr(scheduler_module, 'fit_window', fit)
     found = identify_bag(bag)
-    assert seen == {0: False, 1: False, 2: False, 3: True}
+    assert seen == {0: True, 1: True, 2: False, 3: True}
     assert [w.window_index for w in found.windows] == [1, 2, 3]
 
 

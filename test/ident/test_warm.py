@@ -14,7 +14,7 @@ import galvo_sysid.ident.identify as identify_module
 from galvo_sysid.ident.identify import identify_window
 from galvo_sysid.ident.refine import refine_fit
 from galvo_sysid.ident.refine.joint import REUSE_LEVEL
-from galvo_sysid.ident.warm import WARM_CHI2_Z, WarmStart, plausible
+from galvo_sysid.ident.warm import WARM_CHI2_Z, WarmStart, plausible, reference_start
 from galvo_sysid.model import PAPER_MODEL, PSI, REFERENCE_MODEL, TAU
 from galvo_sysid.sim.config import SimulatorConfig
 from galvo_sysid.sim.simulator import simulate_window
@@ -86,6 +86,47 @@ def test_a_plant_that_moved_is_found_from_the_old_start() -> None:
     z = _z(warm.model.parameters(), fresh.model.parameters(), fresh.std_by_name())
     assert max(abs(v) for v in z.values()) < 0.5, z
     assert abs(fresh.natural_frequencies[0] / omega[0] - 1) < 1e-3
+
+
+def test_a_first_window_started_from_the_model_file_lands_at_its_fresh_optimum(
+        windows_1psi: list, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A window without an earlier result (the sysid node's first of each sign, identify's
+    first of each chain) starts from the model file's modes and lag: no ARX start or scan,
+    within 0.3 std of its fresh fit. A scanner whose modes all drifted 5 % from its model
+    file ends within 0.5 std of its fresh fit too: its unresolved third mode is moved to the
+    better basin of its band (``from_model``); left at the model's frequency, as a start from
+    a fit leaves it, it pulls k2 2 std away."""
+    start = reference_start(PAPER_MODEL)
+    assert (start.model, start.noise_model, start.resolved) == (PAPER_MODEL.modal, None, ())
+    assert start.lag_time_constant == PAPER_MODEL.physics().lag_time_constant
+    assert start.from_model
+    fresh = identify_window(*windows_1psi[3], sample_period=TAU, target_angle=PSI)
+    with monkeypatch.context() as patch:
+        patch.setattr(identify_module, 'paper_pipeline', lambda *a, **k: 1 / 0)
+        warm = identify_window(*windows_1psi[3], sample_period=TAU, target_angle=PSI,
+                               warm_start=start)
+    assert warm.warm_started
+    z = _z(warm.model.parameters(), fresh.model.parameters(), fresh.std_by_name())
+    assert max(abs(v) for v in z.values()) < 0.3, z
+    assert warm.resolved == fresh.resolved
+
+    modal = PAPER_MODEL.modal
+    omega = tuple(1.05 * w for w in modal.natural_frequencies)
+    drifted = replace(PAPER_MODEL, modal=replace(modal, natural_frequencies=omega))
+    cur, enc = simulate_window(PSI, moves=100, seed=40,
+                               config=SimulatorConfig(plant=drifted, design=PAPER_MODEL))
+    fresh = identify_window(cur, enc, sample_period=TAU, target_angle=PSI)
+    assert fresh.resolved == (True, True, False)
+    std = fresh.std_by_name()
+    for begin, most in ((start, 0.5), (replace(start, from_model=False), math.inf)):
+        warm = identify_window(cur, enc, sample_period=TAU, target_angle=PSI,
+                               warm_start=begin)
+        assert warm.warm_started
+        assert warm.resolved == fresh.resolved
+        z = _z(warm.model.parameters(), fresh.model.parameters(), std)
+        worst = max(abs(v) for v in z.values())
+        assert worst < most, z
+    assert worst > 1.0, z  # without from_model
 
 
 def test_the_noise_model_is_reused_rescaled_or_estimated_anew(windows_1psi: list) -> None:

@@ -474,6 +474,39 @@ def test_warm_start_off_or_forgotten_means_every_fit_searches_afresh() -> None:
     assert [w.warm_start for w in seen] == [None] * 4
 
 
+def test_a_sign_without_a_result_starts_from_the_model_until_a_window_fails() -> None:
+    """With a ``reference`` (the node's: its model file's modes), a window of a sign without
+    an earlier result starts from it instead of searching afresh; after a window that failed
+    or did not match, such a window searches afresh until a window is identified again."""
+    from galvo_sysid.ident.warm import reference_start
+    from galvo_sysid.model import PAPER_MODEL
+
+    seen: list[Window] = []
+    done = Collector()
+
+    def fit(w: Window) -> IdentificationResult:
+        seen.append(w)
+        if w.index in (2, 3):  # both windows of round 2
+            raise ModelMismatchError('no physical mode 2 in its band')
+        return fake_result(w.target_angle, w.moves, omega_scale=1 + 0.01 * w.index)
+
+    reference = reference_start(PAPER_MODEL)
+    assert reference.model == PAPER_MODEL.modal
+    assert reference.noise_model is None
+    task = SysidTask(fit, done, warn=lambda _: None, windower={'window_size': 10},
+                     reference=reference)
+    _rounds(task, done, 4, clear=True)
+    task.close()
+    by_index = {w.index: w for w in seen}
+    assert sorted(by_index) == list(range(8))
+    assert by_index[0].warm_start is reference
+    assert by_index[1].warm_start is reference
+    assert by_index[2].warm_start is reference  # the starts were forgotten: the model's
+    assert by_index[4].warm_start is None  # the latest window did not match: afresh
+    assert by_index[6].warm_start is reference  # identified again since
+    assert by_index[7].warm_start is reference
+
+
 def test_a_fit_budget_gives_each_window_its_deadline_and_counts_the_fits_cut_short() -> None:
     """``fit_budget_ms`` (issue 17, a bound on each window's fit): a window's deadline is its
     completion plus the budget, set when it is handed to the fits; a fit that says it was cut
