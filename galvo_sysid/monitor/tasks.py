@@ -29,7 +29,7 @@ from galvo_sysid.ident.measured import check_lag
 from galvo_sysid.ident.warm import WarmStart
 from galvo_sysid.model.files import model_label
 from galvo_sysid.monitor.moves import too_long
-from galvo_sysid.monitor.pairing import MoveWindower
+from galvo_sysid.monitor.pairing import LATE_TOPIC, MoveWindower
 from galvo_sysid.monitor.ratelog import RateLimitedLog
 from galvo_sysid.monitor.rejections import summarize_rejections
 from galvo_sysid.monitor.scheduler import FitOutcome, WindowScheduler
@@ -231,14 +231,17 @@ class SysidTask:
     def tick(self) -> None:
         """Call periodically: expire unpaired halves when input has paused, flush the log.
 
-        While no input arrives, the data clock is assumed to advance at least as fast as
-        the wall clock, so a half whose partner never comes is reported within
-        ``pair_timeout`` (wall) seconds.
+        While no input arrives, the data clocks are assumed to advance at least as fast as
+        the wall clock; a pause in all input is no sign that a partner is missing (huge
+        messages in flight hold up both topics for seconds), so a waiting half is given as
+        long as a lagging partner's topic is (:data:`~galvo_sysid.monitor.pairing.LATE_TOPIC`
+        + 1 pair timeouts): a half whose partner never comes is reported within
+        ``(LATE_TOPIC + 1) * pair_timeout`` (wall) seconds.
         """
         idle = time.monotonic() - self._last_input
         w = self.windower
-        if w.pending and idle > w.pair_timeout:
-            w.expire(w.newest_stamp + idle)
+        if w.pending and idle > (LATE_TOPIC + 1) * w.pair_timeout:
+            w.expire(w.newest_stamp + idle - LATE_TOPIC * w.pair_timeout)
             self._report()
         self._warn.flush()
 

@@ -49,16 +49,32 @@ def test_sysid_task_windows_rejections_and_counters() -> None:
 
 
 def test_sysid_task_says_unpaired_halves_when_input_pauses() -> None:
+    """With no input at all, a waiting half is set aside (and said) once the pause is as
+    long as a lagging partner topic is waited for, LATE_TOPIC + 1 pair timeouts; a partner
+    held up for less (both topics stalled behind huge messages) still pairs."""
+    from galvo_sysid.monitor.pairing import LATE_TOPIC
+
     warnings: list[str] = []
     task = SysidTask(lambda w: fake_result(), lambda o: None, warn=warnings.append,
                      windower={'window_size': 10, 'pair_timeout': 0.05})
-    h = halves_of(GalvoSimulator(seed=1), [0.3], 2)[0]
-    task.add(h)
+    wait = (LATE_TOPIC + 1) * 0.05
+    halves = halves_of(GalvoSimulator(seed=1), [0.3], 2)
+    current = [h for h in halves if h.signal == 'current']
+    encoder = [h for h in halves if h.signal == 'encoder']
+    task.add(current[0])
+    time.sleep(0.5 * wait)  # ten pair timeouts of no input: the partner may still come
+    task.tick()
+    assert task.windower.pending == 1
+    task.add(encoder[0])
+    assert task.windower.pending == 0
+    assert task.windower.moves_rejected == 0
+    task.add(current[1])
     task.tick()
     assert warnings == []
-    time.sleep(0.1)
+    time.sleep(wait + 0.05)
     task.tick()
     task.close()
+    assert task.windower.moves_rejected == 1
     assert len(warnings) == 1
     assert 'unpaired after 0.05 s: no encoder record' in warnings[0]
 

@@ -230,7 +230,8 @@ def test_bad_moves_are_set_aside_and_the_window_completes(graph: Graph) -> None:
     assert graph.get_parameters(f'{ns}/sysid', ['window_size', 'method']) == {
         'window_size': 10, 'method': 'refined'}
 
-    graph.spin_until(lambda: 'unpaired' in sysid.text(), 10, 'the missing partner reported')
+    # the missing partner: set aside after 11 pair timeouts (5.5 s) with no input at all
+    graph.spin_until(lambda: 'unpaired' in sysid.text(), 20, 'the missing partner reported')
     graph.spin_until(lambda: any(d[0] == 1 and 'set aside' in d[2] for d in diags), 10,
                      'sysid diagnostics WARN on the set-aside moves')
     assert all(d[1] == 'scanner_b: identification' for d in diags)
