@@ -23,6 +23,10 @@ every 10th window, so a fit started from the previous window of its angle (the n
   the previous window of their angle: the very first of each sign from the model file, the
   others from the latest result of their sign; what a long run converges to), and those first
   windows' latencies;
+- the node's own figures over its last 200 windows (its last counters line, as on
+  ``/diagnostics``): from a window's completion to its fit's end, and the CPU time of the fit
+  itself in its process; the difference is the hand-over to the fit process and back and the
+  time the fit waited for a CPU beside the other fit and the message handling;
 - where the CPU went from the first move to the last result: the node's own process (its
   executor and message handling), its fit processes (and the CPU per window), and this
   process (the publisher thread and the result listener), each as a share of one CPU; the
@@ -265,6 +269,7 @@ def _measure(args: argparse.Namespace, node: Any, executor: SingleThreadedExecut
         'p99': 1e3 * pct(latencies, 0.99), 'max': 1e3 * max(latencies, default=math.nan),
         'later': [1e3 * statistics.median(later) if later else math.nan,
                   1e3 * pct(later, 0.99), 1e3 * max(later, default=math.nan)],
+        'node': c,
         'firsts': sorted(round(1e3 * (arrivals[k] - completes[k])) for k in firsts
                          if k in arrivals),
         'rss_start': rss_start / 1024, 'rss_end': rss_end / 1024, 'rss_trace': rss_trace,
@@ -346,6 +351,11 @@ def main() -> int:
         ("  without each angle's first window (both signs): median / p99 / max [ms]",
          ' / '.join(f'{v:.0f}' for v in r['later'])
          + f' (the first windows: {", ".join(str(v) for v in r["firsts"])} ms)'),
+        ("  the node's own, its last 200 windows: completion -> fit end; the fit's CPU "
+         'time in its process: median / p99 / max [ms]',
+         ' / '.join(str(r['node'].get(f'latency_ms_{q}', -1)) for q in ('median', 'p99', 'max'))
+         + '; ' + ' / '.join(str(r['node'].get(f'fit_cpu_ms_{q}', -1))
+                             for q in ('median', 'p99', 'max'))),
         ('CPU from the first move to the last result [s]', _cpu_row(r)),
         ('resident memory start -> end [MiB]',
          f'{r["rss_start"]:.0f} -> {r["rss_end"]:.0f} (node + {r["children"]} child '

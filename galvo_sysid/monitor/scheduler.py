@@ -22,6 +22,7 @@ from __future__ import annotations
 import collections
 import concurrent.futures
 import functools
+import math
 import multiprocessing
 import os
 import threading
@@ -82,6 +83,14 @@ def node_fit(*, method: str, model: PlantModel | None, na: int,
     if method == 'refined':
         options['bound'] = False
     return functools.partial(fit_window, method=method, model=model, options=options)
+
+
+def _timed(fit: Callable[[Window], IdentificationResult],
+           window: Window) -> tuple[IdentificationResult, float]:
+    """``fit(window)`` and the CPU seconds it took on its thread (a fit process's only one)."""
+    start = time.thread_time()
+    result = fit(window)
+    return result, time.thread_time() - start
 
 
 def _child_init(parent: int) -> None:
@@ -146,6 +155,9 @@ class FitOutcome:
             (:class:`~galvo_sysid.errors.ModelMismatchError`; ``error`` says why).
         exception: The exception the fit raised (None on success), for callers that word
             the failure their own way.
+        fit_cpu: CPU seconds the fit itself took, where it ran (nan if it failed);
+            ``fit_time`` less this is the hand-over to and from a fit process and the time
+            the fit waited for a CPU.
     """
 
     window: Window
@@ -155,6 +167,7 @@ class FitOutcome:
     fit_time: float
     mismatch: bool = False
     exception: BaseException | None = field(default=None, compare=False, repr=False)
+    fit_cpu: float = field(default=math.nan, compare=False)
 
 
 _STOP = object()
@@ -328,10 +341,10 @@ class WindowScheduler:
                 return
             seq, window, queued_at = item
             start = time.monotonic()
-            result, error, mismatch, exception = self._fit_one(window)
+            result, error, mismatch, exception, cpu = self._fit_one(window)
             end = time.monotonic()
             outcome = FitOutcome(window, result, error, start - queued_at, end - start,
-                                 mismatch=mismatch, exception=exception)
+                                 mismatch=mismatch, exception=exception, fit_cpu=cpu)
             with self._cond:
                 if result is not None:
                     self.fitted += 1
@@ -370,21 +383,28 @@ class WindowScheduler:
                     traceback.print_exc()
 
     def _fit_one(self, window: Window) -> tuple[IdentificationResult | None, str | None, bool,
-                                                BaseException | None]:
-        """(result, why it failed, whether the data do not match the model, the exception)."""
+                                                BaseException | None, float]:
+        """(result, why it failed, whether the data do not match the model, the exception,
+        the fit's CPU seconds)."""  # noqa: D205, D209
+        nan = math.nan
         try:
             if self._pool is None:
-                return self._fit(window), None, False, None
+                return self._ok(*_timed(self._fit, window))
             try:
-                return self._pool.submit(self._fit, window).result(), None, False, None
+                return self._ok(*self._pool.submit(_timed, self._fit, window).result())
             except concurrent.futures.process.BrokenProcessPool as err:
                 with self._cond:  # a child died: start a new pool for the next windows
                     if not self._closed:
                         self._pool = self._new_pool()
-                return None, 'identification process died', False, err
+                return None, 'identification process died', False, err, nan
         except ModelMismatchError as err:
-            return None, one_line(err), True, err
+            return None, one_line(err), True, err, nan
         except GalvoSysidError as err:
-            return None, str(err), False, err
+            return None, str(err), False, err, nan
         except Exception as err:  # keep the node alive, say what happened
-            return None, f'unexpected {type(err).__name__}: {err}', False, err
+            return None, f'unexpected {type(err).__name__}: {err}', False, err, nan
+
+    @staticmethod
+    def _ok(result: IdentificationResult, cpu: float) -> tuple[
+            IdentificationResult, None, bool, None, float]:
+        return result, None, False, None, cpu

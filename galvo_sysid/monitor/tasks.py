@@ -16,6 +16,7 @@ convert messages and forward them; tests and benchmarks drive these objects dire
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections import OrderedDict, deque
@@ -37,6 +38,8 @@ from galvo_sysid.monitor.verdict import ERROR, OK, STATUS_OK, WARN
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping
+
+    from numpy.typing import NDArray
 
     from galvo_sysid.ident.result import IdentificationResult
     from galvo_sysid.monitor.drift import DriftMonitor, ModalEstimate
@@ -77,6 +80,16 @@ def mismatch_message(reason: str, *, model_path: str | None) -> str:
     why = ' '.join(reason.split())
     return (f'the data do not match model {model_label(model_path)}: {why}; run galvo-sysid '
             f'commission')
+
+
+def _spread(seconds: NDArray[np.float64], name: str) -> dict[str, int]:
+    """``{name}_median``, ``_p99`` and ``_max`` of ``seconds`` in ms (-1 each if empty)."""
+    keys = (f'{name}_median', f'{name}_p99', f'{name}_max')
+    if not seconds.size:
+        return dict.fromkeys(keys, -1)
+    median, p99 = np.percentile(seconds, [50.0, 99.0])
+    return dict(zip(keys, (round(1e3 * float(median)), round(1e3 * float(p99)),
+                           round(1e3 * float(seconds.max()))), strict=True))
 
 
 class SysidTask:
@@ -132,6 +145,7 @@ class SysidTask:
         self.halves_received = 0
         self.windows_completed = 0
         self._latencies: deque[float] = deque(maxlen=LATENCY_WINDOWS)
+        self._fit_cpu: deque[float] = deque(maxlen=LATENCY_WINDOWS)
         self._last_input = time.monotonic()
         self._lock = threading.Lock()
         self.last_mismatch: str | None = None
@@ -270,6 +284,8 @@ class SysidTask:
         key = self._start_key(w)
         with self._lock:
             self._latencies.append(outcome.queued + outcome.fit_time)
+            if math.isfinite(outcome.fit_cpu):
+                self._fit_cpu.append(outcome.fit_cpu)
             start = None if outcome.result is None else WarmStart.from_result(outcome.result)
             if start is not None:
                 self._keep(self._starts, key, start)
@@ -305,7 +321,7 @@ class SysidTask:
         by a fit started from an earlier result, and by a fit cut short at
         its budget) / failed / not matching the model / dropped, open windows evicted /
         expired, resets, queue, bytes of samples buffered, the most one topic came late
-        behind the other [ms]."""  # noqa: D205, D209
+        behind the other [ms], and :meth:`latency_ms`."""  # noqa: D205, D209
         w = self.windower
         f = self.fitter
         return {'halves_received': self.halves_received, 'moves_accepted': w.moves_accepted,
@@ -325,17 +341,15 @@ class SysidTask:
                 'topic_lag_ms_max': round(1e3 * w.topic_lag), **self.latency_ms()}
 
     def latency_ms(self) -> dict[str, int]:
-        """Latency from a window's completion to the end of its fit [ms]: median, 99th
-        percentile and largest over the last :data:`LATENCY_WINDOWS` windows finished (-1 each
-        before the first)."""  # noqa: D205, D209
+        """Latency from a window's completion to the end of its fit, and the CPU time of the
+        fit itself (where it ran) [ms]: median, 99th percentile and largest over the last
+        :data:`LATENCY_WINDOWS` windows finished (the CPU time over those identified; -1 each
+        before the first). The latency less the fit's CPU is the wait for a fit process,
+        the hand-over to it and back, and the time the fit waited for a CPU."""  # noqa: D205, D209
         with self._lock:
-            values = np.array(self._latencies, dtype=float)
-        if not values.size:
-            return dict.fromkeys(('latency_ms_median', 'latency_ms_p99', 'latency_ms_max'), -1)
-        median, p99 = np.percentile(values, [50.0, 99.0])
-        return {'latency_ms_median': round(1e3 * float(median)),
-                'latency_ms_p99': round(1e3 * float(p99)),
-                'latency_ms_max': round(1e3 * float(values.max()))}
+            latencies = np.array(self._latencies, dtype=float)
+            cpu = np.array(self._fit_cpu, dtype=float)
+        return {**_spread(latencies, 'latency_ms'), **_spread(cpu, 'fit_cpu_ms')}
 
     def health(self, since: Mapping[str, int], *,
                now: Mapping[str, int] | None = None) -> tuple[int, str]:

@@ -403,18 +403,59 @@ def test_sysid_task_reports_the_latency_of_its_windows() -> None:
     (issue 17: the latency distribution on /diagnostics), over the last 200 windows."""
     task = SysidTask(lambda w: fake_result(), lambda o: None, warn=lambda _: None)
     assert task.stats()['latency_ms_p99'] == -1  # nothing finished yet
+    assert task.stats()['fit_cpu_ms_p99'] == -1
     for i, seconds in enumerate([0.010, 0.020, 0.030, 0.040, 1.0]):
         task._done(FitOutcome(window(i), fake_result(), None, queued=seconds / 2,
-                              fit_time=seconds / 2))
+                              fit_time=seconds / 2, fit_cpu=seconds / 4))
+    task._done(FitOutcome(window(5), None, 'failed', queued=0.0, fit_time=2.0))  # no CPU
     stats = task.stats()
     task.close()
-    assert stats['latency_ms_median'] == 30
-    assert stats['latency_ms_max'] == 1000
-    assert stats['latency_ms_p99'] == round(float(np.percentile([10, 20, 30, 40, 1000], 99)))
+    assert stats['latency_ms_median'] == 35
+    assert stats['latency_ms_max'] == 2000
+    assert stats['latency_ms_p99'] == round(float(np.percentile([10, 20, 30, 40, 1000, 2000],
+                                                                99)))
+    assert (stats['fit_cpu_ms_median'], stats['fit_cpu_ms_max']) == (8, 250)  # 7.5 rounds up
     for i in range(300):  # only the last 200 count
-        task._done(FitOutcome(window(i), fake_result(), None, queued=0.0, fit_time=0.005))
+        task._done(FitOutcome(window(i), fake_result(), None, queued=0.0, fit_time=0.005,
+                              fit_cpu=0.004))
     assert task.latency_ms() == {'latency_ms_median': 5, 'latency_ms_p99': 5,
-                                 'latency_ms_max': 5}
+                                 'latency_ms_max': 5, 'fit_cpu_ms_median': 4,
+                                 'fit_cpu_ms_p99': 4, 'fit_cpu_ms_max': 4}
+
+
+def test_the_scheduler_measures_each_fits_cpu_time_where_it_runs() -> None:
+    """A fit's CPU time is measured on the thread or in the child process that runs it: a
+    fit that burns about 60 ms of CPU reports that, one that sleeps 60 ms next to none; a
+    failed fit reports none (nan)."""
+    import math
+
+    from galvo_sysid.monitor.scheduler import WindowScheduler
+
+    for processes in (0, 1):
+        with WindowScheduler(_burn_or_sleep, processes=processes, warm_up=False) as fits:
+            for w in (window(0), window(1), window(2)):
+                fits.submit(w)
+            fits.close(timeout=60)
+            done = {o.window.index: o for o in fits.take()}
+        assert done[0].fit_cpu > 0.04, done[0]
+        assert done[1].fit_cpu < 0.02, done[1]
+        assert done[1].fit_time >= 0.06
+        assert done[2].result is None
+        assert math.isnan(done[2].fit_cpu)
+
+
+def _burn_or_sleep(w: Window) -> IdentificationResult:
+    """Window 0: 60 ms of CPU; window 1: 60 ms asleep; window 2: fails (picklable)."""
+    from galvo_sysid.errors import IdentificationError
+
+    if w.index == 2:
+        raise IdentificationError('made to fail')
+    end = time.monotonic() + 0.06
+    if w.index == 1:
+        time.sleep(0.06)
+    while time.monotonic() < end:
+        pass
+    return fake_result()
 
 
 
