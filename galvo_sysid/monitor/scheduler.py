@@ -28,9 +28,11 @@ import os
 import threading
 import time
 from dataclasses import dataclass, field
+from multiprocessing import resource_tracker
 from typing import TYPE_CHECKING, Any, Literal
 
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError, ModelMismatchError, one_line
+from galvo_sysid.monitor.handover import Ticket, WindowBuffer, take_window
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping
@@ -91,6 +93,12 @@ def _timed(fit: Callable[[Window], IdentificationResult],
     start = time.thread_time()
     result = fit(window)
     return result, time.thread_time() - start
+
+
+def _timed_ticket(fit: Callable[[Window], IdentificationResult],
+                  ticket: Ticket) -> tuple[IdentificationResult, float]:
+    """In a fit process: :func:`_timed` of the window handed over in shared memory."""
+    return _timed(fit, take_window(ticket))
 
 
 def _child_init(parent: int) -> None:
@@ -240,6 +248,9 @@ class WindowScheduler:
         self._closed = False
         self._pool: concurrent.futures.ProcessPoolExecutor | None = None
         if self.processes:  # children first: a forked pool starts them all at its first task
+            # the tracker of the windows' shared memory (handover), shared by the children:
+            # started before they are (a forked child would otherwise start its own)
+            resource_tracker.ensure_running()
             self._pool = self._new_pool()
             for _ in range(self.processes):  # busy children make the pool start the next one
                 self._pool.submit(_warm_up if warm_up else _started)
@@ -331,6 +342,13 @@ class WindowScheduler:
             self._pool.shutdown(wait=True, cancel_futures=True)
 
     def _run(self) -> None:
+        buffer = WindowBuffer()  # this thread's windows to the fit processes
+        try:
+            self._serve(buffer)
+        finally:
+            buffer.close()
+
+    def _serve(self, buffer: WindowBuffer) -> None:
         while True:
             with self._cond:
                 while not self._queue:
@@ -341,7 +359,7 @@ class WindowScheduler:
                 return
             seq, window, queued_at = item
             start = time.monotonic()
-            result, error, mismatch, exception, cpu = self._fit_one(window)
+            result, error, mismatch, exception, cpu = self._fit_one(window, buffer)
             end = time.monotonic()
             outcome = FitOutcome(window, result, error, start - queued_at, end - start,
                                  mismatch=mismatch, exception=exception, fit_cpu=cpu)
@@ -382,16 +400,20 @@ class WindowScheduler:
 
                     traceback.print_exc()
 
-    def _fit_one(self, window: Window) -> tuple[IdentificationResult | None, str | None, bool,
-                                                BaseException | None, float]:
+    def _fit_one(self, window: Window, buffer: WindowBuffer) -> tuple[
+            IdentificationResult | None, str | None, bool, BaseException | None, float]:
         """(result, why it failed, whether the data do not match the model, the exception,
-        the fit's CPU seconds)."""  # noqa: D205, D209
+        the fit's CPU seconds). A fit process gets the window's records through ``buffer``
+        (:mod:`~galvo_sysid.monitor.handover`), or whole where that cannot be had."""  # noqa: D205, D209
         nan = math.nan
         try:
             if self._pool is None:
                 return self._ok(*_timed(self._fit, window))
             try:
-                return self._ok(*self._pool.submit(_timed, self._fit, window).result())
+                ticket = buffer.put(window)
+                future = (self._pool.submit(_timed, self._fit, window) if ticket is None
+                          else self._pool.submit(_timed_ticket, self._fit, ticket))
+                return self._ok(*future.result())
             except concurrent.futures.process.BrokenProcessPool as err:
                 with self._cond:  # a child died: start a new pool for the next windows
                     if not self._closed:

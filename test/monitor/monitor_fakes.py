@@ -61,3 +61,12 @@ def halves_of(sim: GalvoSimulator, angles: list[float], moves_per_angle: int) ->
         for sig, data in (('current', m.current), ('encoder', m.encoder)):
             out.append(MoveHalf(sig, m.move_id, m.target_angle, m.sample_period, m.stamp, data))
     return out
+
+
+def echo_fit(w: Window) -> tuple[float, float, tuple[int, ...], float | None, int, int]:
+    """What a fit process got of the window: its records' sums and shape, its deadline and
+    index, and this process's id (picklable, for the scheduler's child processes)."""
+    import os
+
+    return (float(w.current.sum()), float(w.encoder.sum()), w.current.shape, w.deadline,
+            w.index, os.getpid())

@@ -1,0 +1,143 @@
+"""Windows handed to the fit processes through shared memory (galvo_sysid.monitor.handover):
+the same records arrive, the blocks are removed, and without shared memory the pipe serves."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from monitor_fakes import echo_fit
+
+from galvo_sysid.ident.warm import WarmStart
+from galvo_sysid.model import REFERENCE_MODEL
+from galvo_sysid.monitor import handover
+from galvo_sysid.monitor.handover import WindowBuffer, take_window
+from galvo_sysid.monitor.moves import Window
+from galvo_sysid.monitor.scheduler import WindowScheduler
+
+SHM = Path('/dev/shm')
+
+
+def _window(index: int, moves: int, samples: int = 512, seed: int = 0) -> Window:
+    rng = np.random.default_rng(seed)
+    return Window(index=index, target_angle=-0.9, sample_period=1e-5,
+                  current=rng.standard_normal((moves, samples)),
+                  encoder=rng.standard_normal((moves, samples)),
+                  move_ids=tuple(range(moves)), first_stamp=1.0, last_stamp=2.0,
+                  warm_start=WarmStart(model=REFERENCE_MODEL, lag_time_constant=6e-6),
+                  deadline=123.5)
+
+
+def _exists(name: str) -> bool:
+    return (SHM / name.lstrip('/')).exists()
+
+
+def test_a_window_comes_out_of_the_block_as_it_went_in() -> None:
+    buffer = WindowBuffer()
+    try:
+        first = _window(0, 100)
+        ticket = buffer.put(first)
+        assert ticket is not None
+        assert buffer.name is not None
+        name = buffer.name
+        assert ticket.window.current.size == 0  # the records are not in the ticket
+        got = take_window(ticket)
+        np.testing.assert_array_equal(got.current, first.current)
+        np.testing.assert_array_equal(got.encoder, first.encoder)
+        assert dataclasses.replace(got, current=first.current, encoder=first.encoder) == first
+        # a smaller window reuses the block; a larger one gets a new block, the old removed
+        small = _window(1, 7, samples=300, seed=1)
+        ticket = buffer.put(small)
+        assert ticket is not None
+        assert buffer.name == name
+        np.testing.assert_array_equal(take_window(ticket).encoder, small.encoder)
+        large = _window(2, 150, seed=2)
+        ticket = buffer.put(large)
+        assert ticket is not None
+        assert buffer.name != name
+        assert not _exists(name)
+        np.testing.assert_array_equal(take_window(ticket).current, large.current)
+        name = buffer.name
+        assert name is not None
+        assert _exists(name)
+    finally:
+        buffer.close()
+    assert buffer.name is None
+    assert not _exists(name)
+
+
+def test_records_that_are_not_two_float64_arrays_of_one_shape_go_whole() -> None:
+    buffer = WindowBuffer()
+    try:
+        w = _window(0, 4)
+        assert buffer.put(dataclasses.replace(w, current=w.current.astype(np.float32))) is None
+        assert buffer.put(dataclasses.replace(w, encoder=w.encoder[:3])) is None
+        assert buffer.put(dataclasses.replace(w, current=w.current[0], encoder=w.encoder[0])) \
+            is None
+        assert buffer.name is None
+        assert not buffer.failed
+    finally:
+        buffer.close()
+
+
+def _recording(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The names of the blocks the scheduler's buffers use."""
+    names: list[str] = []
+    put = WindowBuffer.put
+
+    def recorded(self: WindowBuffer, window: Window) -> Any:
+        ticket = put(self, window)
+        if ticket is not None:
+            names.append(ticket.name)
+        return ticket
+
+    monkeypatch.setattr(WindowBuffer, 'put', recorded)
+    return names
+
+
+@pytest.mark.parametrize('start_method', ['fork', 'spawn'])
+def test_the_fit_processes_get_every_window_through_shared_memory_and_none_is_left(
+        monkeypatch: pytest.MonkeyPatch, start_method: str) -> None:
+    names = _recording(monkeypatch)
+    windows = [_window(i, moves, seed=i) for i, moves in enumerate((100, 100, 120, 3, 100))]
+    with WindowScheduler(echo_fit, processes=2, ordered=True, when_full='wait',
+                         start_method=start_method, warm_up=False) as scheduler:
+        for w in windows:
+            scheduler.submit(w)
+        outcomes = []
+        while len(outcomes) < len(windows):
+            outcomes += scheduler.take(block=True)
+    assert len(names) == len(windows)  # every window went through a block
+    for w, outcome in zip(windows, outcomes, strict=True):
+        assert outcome.error is None
+        cur, enc, shape, deadline, index, pid = outcome.result  # type: ignore[misc]
+        assert (cur, enc, shape, deadline, index) == (float(w.current.sum()),
+                                                      float(w.encoder.sum()), w.current.shape,
+                                                      123.5, w.index)
+        assert pid != os.getpid()  # fitted in a child
+    assert not any(_exists(name) for name in set(names))
+
+
+def test_without_shared_memory_the_windows_go_through_the_pipe(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    names = _recording(monkeypatch)
+
+    class NoSharedMemory:
+        def __init__(self, *args: object, **kwargs: object) -> None:
+            raise OSError(28, 'No space left on device')
+
+    monkeypatch.setattr(handover.shared_memory, 'SharedMemory', NoSharedMemory)
+    windows = [_window(i, 50, seed=i) for i in range(3)]
+    with WindowScheduler(echo_fit, processes=1, ordered=True, start_method='fork',
+                         warm_up=False) as scheduler:
+        for w in windows:
+            scheduler.submit(w)
+        outcomes = []
+        while len(outcomes) < len(windows):
+            outcomes += scheduler.take(block=True)
+    assert names == []
+    assert [o.result[0] for o in outcomes] == [float(w.current.sum()) for w in windows]  # type: ignore[index]
