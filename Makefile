@@ -57,7 +57,7 @@ lint: setup
 # Speed and accuracy figures (tables on stdout; latest output in docs/benchmarks.md).
 BENCHMARKS := accuracy scanner_family paper_pipeline simulator_speed offline_speed offline_warm \
               sysid_throughput sysid_load discrepancy_confusion sysid_hostile_input dither_gain \
-              efficiency pooled_efficiency fit_stages independent_scanners
+              efficiency pooled_efficiency fit_stages independent_scanners handover_speed
 bench: setup
 	set -e; for b in $(BENCHMARKS); do echo "== benchmarks/$$b.py"; $(VPY) benchmarks/$$b.py; done
 
