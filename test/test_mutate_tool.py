@@ -139,3 +139,14 @@ def test_table_gives_the_share_killed() -> None:
     assert 'killed 3 of 4 (75 %)' in text
     assert f'survived: #{mutants[1].index}' in text
     assert '4 of 4 mutants (seed 3)' in text
+
+
+def test_a_mutant_that_breaks_the_tests_import_counts_as_killed(tmp_path: Path) -> None:
+    (tmp_path / 'broken_at_import.py').write_text('import numpy as np\nEMPTY = np.zeros((0, -1))\n',
+                                                  encoding='utf-8')
+    test = tmp_path / 'test_broken_at_import.py'
+    test.write_text('from broken_at_import import EMPTY\n\n\ndef test_it():\n'
+                    '    assert EMPTY.size == 0\n', encoding='utf-8')
+    verdict, _ = mutate._run_tests([str(test)], keyword=None, timeout=60.0,
+                                   python=sys.executable)
+    assert verdict == 'failed'

@@ -15,8 +15,9 @@ Mutations are made with :mod:`ast` and written into the source text at the node'
 modification time are restored after each run (also on Ctrl-C; a backup beside the module
 stays until the run ends, and a run refuses to start while one exists). Left alone: f-strings,
 docstrings, the ``if TYPE_CHECKING`` and ``if __name__ == '__main__'`` blocks. A mutant's
-tests run in a child process with a timeout (a timeout counts as killed); the unmutated
-module must pass them first. Only the standard library is used (no mutmut, no cosmic-ray).
+tests run in a child process with a timeout (a timeout counts as killed, as does a mutant
+that makes the tests' imports fail); the unmutated module must pass them first. Only the
+standard library is used (no mutmut, no cosmic-ray).
 
 Usage (from the repository root, with the project's Python)::
 
@@ -203,6 +204,12 @@ class Outcome:
     seconds: float
 
 
+_COLLECTION_ERROR = 'during collection'
+"""What pytest says when a test module cannot be imported: with the unmutated module the
+tests were collected, so a mutant that makes the import fail (a mutated constant raising at
+import time) is one the tests notice."""
+
+
 def _run_tests(tests: list[str], *, keyword: str | None, timeout: float,
                python: str) -> tuple[str, float]:
     """Run pytest on ``tests`` in a child: ``passed``, ``failed`` or ``timeout``."""
@@ -222,6 +229,8 @@ def _run_tests(tests: list[str], *, keyword: str | None, timeout: float,
     seconds = time.monotonic() - t0
     if proc.returncode == 5:
         raise SystemExit(f'mutate: no tests collected by {" ".join(cmd)}')
+    if proc.returncode == 2 and _COLLECTION_ERROR in proc.stdout + proc.stderr:
+        return 'failed', seconds  # the mutant breaks the import the tests need: noticed
     if proc.returncode not in (0, 1):
         tail = (proc.stdout + proc.stderr).strip().splitlines()[-3:]
         raise SystemExit(f'mutate: pytest exited with {proc.returncode}: {" | ".join(tail)}')

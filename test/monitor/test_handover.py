@@ -49,7 +49,11 @@ def test_a_window_comes_out_of_the_block_as_it_went_in() -> None:
         np.testing.assert_array_equal(got.current, first.current)
         np.testing.assert_array_equal(got.encoder, first.encoder)
         assert dataclasses.replace(got, current=first.current, encoder=first.encoder) == first
-        # a smaller window reuses the block; a larger one gets a new block, the old removed
+        # a window of the same size or smaller reuses the block; a larger one gets a new
+        # block, the old one removed
+        ticket = buffer.put(_window(5, 100, seed=5))
+        assert ticket is not None
+        assert buffer.name == name
         small = _window(1, 7, samples=300, seed=1)
         ticket = buffer.put(small)
         assert ticket is not None
