@@ -1,17 +1,18 @@
 """A window's records handed to a fit process through shared memory, not a pipe.
 
-A window of 100 moves of 512 samples is 800 kB of current and encoder records. Pickled into
-the process pool's pipe, it took 3-4 ms to reach an idle fit process here (1.4 ms of
-pickling, the rest 64 kB pipe chunks passed one at a time between the two processes) and
-about 10 ms at the 99th percentile under the sysid node's load at 1,000 moves/s, where every
-chunk waits for the other process to be scheduled. Each worker thread of the
-:class:`~galvo_sysid.monitor.scheduler.WindowScheduler` instead owns one block of shared
-memory (:class:`multiprocessing.shared_memory.SharedMemory`), reused window after window
-and replaced by a larger one when a window does not fit: it copies the records in, hands
-the fit process a :class:`Ticket` (the block's name, the records' shape and the window
-without its records) and waits for the outcome before it writes the next window. The fit
-process copies the records out and fits the same arrays as before, so the numbers do not
-change.
+A window of 100 moves of 512 samples is 819 kB of current and encoder records. Pickled into
+the process pool's pipe, it took 3.0 ms to reach an idle fit process on the quiet machine
+(1.4 ms of it pickling, the rest 64 kB pipe chunks passed one at a time between the two
+processes) and 5.7 ms at the 99th percentile beside two busy processes, where every chunk
+waits for the other process to be scheduled; through shared memory 0.8 and 2.2 ms
+(``benchmarks/handover_speed.py``, 2026-11-27). Each worker thread of the
+:class:`~galvo_sysid.monitor.scheduler.WindowScheduler` owns one block of shared memory
+(:class:`multiprocessing.shared_memory.SharedMemory`), reused window after window and
+replaced when a window does not fit or needs far less (:data:`SHRINK`). It copies the
+records in, hands the fit process a :class:`Ticket` (the block's name, the records' shape
+and the window without its records) and waits for the outcome before it writes the next
+window. The fit process copies the records out and fits the same arrays as before, so the
+numbers do not change.
 
 The blocks are registered with :mod:`multiprocessing`'s resource tracker, which removes
 them if the process that made them is killed; :meth:`WindowBuffer.close` removes them
@@ -34,6 +35,10 @@ if TYPE_CHECKING:
 __all__ = ['Ticket', 'WindowBuffer', 'take_window']
 
 _EMPTY = np.zeros((0, 0))
+
+SHRINK = 4
+"""A block more than this many times a window's size (and over 1 MiB) is replaced by one of
+the window's size: one long window does not hold its memory for the node's life."""
 
 
 @dataclass(frozen=True)
@@ -78,7 +83,8 @@ class WindowBuffer:
                 cur.dtype != np.float64 or enc.dtype != np.float64 or not cur.size:
             return None
         size = cur.nbytes + enc.nbytes
-        if self._block is None or self._block.size < size:
+        if self._block is None or self._block.size < size or \
+                self._block.size > max(SHRINK * size, 1 << 20):
             self.close()
             try:
                 self._block = shared_memory.SharedMemory(create=True, size=size)

@@ -68,6 +68,23 @@ def test_a_window_comes_out_of_the_block_as_it_went_in() -> None:
         name = buffer.name
         assert name is not None
         assert _exists(name)
+        # a window far smaller than a block over 1 MiB gets a block of its size
+        huge = _window(3, 1000, seed=3)
+        ticket = buffer.put(huge)
+        assert ticket is not None
+        assert buffer.name != name
+        big = buffer.name
+        np.testing.assert_array_equal(take_window(ticket).encoder, huge.encoder)
+        ticket = buffer.put(_window(4, 260, seed=4))  # over a quarter of it: kept
+        assert ticket is not None
+        assert buffer.name == big
+        ticket = buffer.put(first)
+        assert ticket is not None
+        assert buffer.name != big
+        assert not _exists(big)
+        np.testing.assert_array_equal(take_window(ticket).current, first.current)
+        name = buffer.name
+        assert name is not None
     finally:
         buffer.close()
     assert buffer.name is None
