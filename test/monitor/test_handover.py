@@ -38,57 +38,43 @@ def _exists(name: str) -> bool:
 
 def test_a_window_comes_out_of_the_block_as_it_went_in() -> None:
     buffer = WindowBuffer()
-    try:
-        first = _window(0, 100)
-        ticket = buffer.put(first)
+    gone: list[str] = []
+
+    def put(w: Window, *, new_block: bool) -> None:
+        before = buffer.name
+        ticket = buffer.put(w)
         assert ticket is not None
-        assert buffer.name is not None
-        name = buffer.name
         assert ticket.window.current.size == 0  # the records are not in the ticket
         got = take_window(ticket)
-        np.testing.assert_array_equal(got.current, first.current)
-        np.testing.assert_array_equal(got.encoder, first.encoder)
-        assert dataclasses.replace(got, current=first.current, encoder=first.encoder) == first
-        # a window of the same size or smaller reuses the block; a larger one gets a new
-        # block, the old one removed
-        ticket = buffer.put(_window(5, 100, seed=5))
-        assert ticket is not None
-        assert buffer.name == name
-        small = _window(1, 7, samples=300, seed=1)
-        ticket = buffer.put(small)
-        assert ticket is not None
-        assert buffer.name == name
-        np.testing.assert_array_equal(take_window(ticket).encoder, small.encoder)
-        large = _window(2, 150, seed=2)
-        ticket = buffer.put(large)
-        assert ticket is not None
-        assert buffer.name != name
-        assert not _exists(name)
-        np.testing.assert_array_equal(take_window(ticket).current, large.current)
-        name = buffer.name
-        assert name is not None
-        assert _exists(name)
-        # a window far smaller than a block over 1 MiB gets a block of its size
-        huge = _window(3, 1000, seed=3)
-        ticket = buffer.put(huge)
-        assert ticket is not None
-        assert buffer.name != name
-        big = buffer.name
-        np.testing.assert_array_equal(take_window(ticket).encoder, huge.encoder)
-        ticket = buffer.put(_window(4, 260, seed=4))  # over a quarter of it: kept
-        assert ticket is not None
-        assert buffer.name == big
-        ticket = buffer.put(first)
-        assert ticket is not None
-        assert buffer.name != big
-        assert not _exists(big)
-        np.testing.assert_array_equal(take_window(ticket).current, first.current)
-        name = buffer.name
-        assert name is not None
+        np.testing.assert_array_equal(got.current, w.current)
+        np.testing.assert_array_equal(got.encoder, w.encoder)
+        assert dataclasses.replace(got, current=w.current, encoder=w.encoder) == w
+        assert buffer.name is not None
+        assert _exists(buffer.name)
+        assert (buffer.name != before) == new_block, (w.current.shape, before, buffer.name)
+        if new_block and before is not None:
+            gone.append(before)
+            assert not _exists(before)  # the block it replaced is removed
+
+    try:
+        first = _window(0, 100)  # 819 kB
+        put(first, new_block=True)
+        put(_window(1, 100, seed=1), new_block=False)  # the same size: reused
+        small = _window(2, 7, samples=300, seed=2)  # 34 kB
+        put(small, new_block=False)  # smaller, in a block under 1 MiB: reused
+        put(_window(3, 150, seed=3), new_block=True)  # 1.2 MB: larger, a new block
+        put(small, new_block=True)  # a block over 1 MiB and 4x the window: replaced
+        put(_window(4, 1000, seed=4), new_block=True)  # 8.2 MB
+        put(_window(5, 260, seed=5), new_block=False)  # 2.1 MB, over a quarter: reused
+        put(_window(6, 220, seed=6), new_block=True)  # 1.8 MB, under a quarter: replaced
+        put(first, new_block=False)
+        last = buffer.name
     finally:
         buffer.close()
+    assert len(gone) == 4
     assert buffer.name is None
-    assert not _exists(name)
+    assert last is not None
+    assert not _exists(last)
 
 
 def test_records_that_are_not_two_float64_arrays_of_one_shape_go_whole() -> None:
