@@ -26,6 +26,8 @@ if TYPE_CHECKING:
 
 RATE_FACTOR = 0.1
 WAIT = ('--timeout', '20')
+TEARDOWN_KILLED = ('galvo-sysid: error: the ROS middleware did not shut down within 10 s; '
+                   'killed (the output above is complete)')
 
 
 @pytest.fixture(scope='module')
@@ -88,8 +90,14 @@ def test_echo_field_prints_one_field_of_each_message(driver: Proc, venv_bin: Pat
         ('echo', '/galvo/encoder', '--field', 'data', '--json', '--once', *WAIT),
         ('echo', '/galvo/encoder', '--field', 'data.512', '--once', *WAIT),
         ('echo', '/galvo/encoder', '--field', 'heder.stamp', '--once', *WAIT))
-    for ok in (move_id, stamp, angle, data):
-        assert ok.returncode == 0, ok.stderr
+    # A tool whose DDS teardown hangs after its output is killed by its guard with one line
+    # (docs/reliability.md, "Faults"): seen once in this test, under a full test run, with
+    # six participants leaving at once. Its output is still checked; more than one such
+    # kill, or any other failure, fails the test.
+    killed = [p for p in (move_id, stamp, angle, data) if p.returncode != 0]
+    for p in killed:
+        assert (p.returncode, p.stderr.strip()) == (-9, TEARDOWN_KILLED), p.stderr
+    assert len(killed) <= 1
     assert isinstance(json.loads(move_id.stdout), int)
     assert stamp.stdout.endswith('\n---\n')
     assert set(yaml.safe_load(stamp.stdout.removesuffix('---\n'))) == {'sec', 'nanosec'}
