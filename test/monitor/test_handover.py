@@ -148,3 +148,55 @@ def test_without_shared_memory_the_windows_go_through_the_pipe(
             outcomes += scheduler.take(block=True)
     assert names == []
     assert [o.result[0] for o in outcomes] == [float(w.current.sum()) for w in windows]  # type: ignore[index]
+
+
+KILLED = """
+import os, signal, sys, time
+import numpy as np
+from monitor_fakes import echo_fit
+from galvo_sysid.monitor import handover
+from galvo_sysid.monitor.moves import Window
+from galvo_sysid.monitor.scheduler import WindowScheduler
+
+names = set()
+put = handover.WindowBuffer.put
+
+
+def recorded(self, window):
+    ticket = put(self, window)
+    names.add(ticket.name)
+    return ticket
+
+
+handover.WindowBuffer.put = recorded
+if __name__ == '__main__':
+    scheduler = WindowScheduler(echo_fit, processes=2, start_method='spawn', warm_up=False)
+    for i in range(4):
+        scheduler.submit(Window(index=i, target_angle=0.3, sample_period=1e-5,
+                                current=np.ones((10, 64)), encoder=np.ones((10, 64)),
+                                move_ids=tuple(range(10)), first_stamp=0.0, last_stamp=1.0))
+    while scheduler.fitted < 4:
+        time.sleep(0.05)
+    print(' '.join(sorted(names)), flush=True)
+    os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_a_killed_scheduler_leaves_no_block_behind(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / 'killed.py'
+    script.write_text(KILLED, encoding='utf-8')
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(Path(__file__).parent), str(Path(__file__).parents[2])]))
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=60, env=env, check=False)
+    assert proc.returncode == -9, proc.stderr
+    names = proc.stdout.split()
+    assert names  # the windows went through blocks
+    deadline = time.monotonic() + 10.0  # the resource tracker removes them once it sees
+    while any(_exists(n) for n in names) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(_exists(n) for n in names)
