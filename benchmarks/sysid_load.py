@@ -24,9 +24,10 @@ every 10th window, so a fit started from the previous window of its angle (the n
   others from the latest result of their sign; what a long run converges to), and those first
   windows' latencies;
 - the node's own figures over its last 200 windows (its last counters line, as on
-  ``/diagnostics``): from a window's completion to its fit's end, and the CPU time of the fit
-  itself in its process; the difference is the hand-over to the fit process and back and the
-  time the fit waited for a CPU beside the other fit and the message handling;
+  ``/diagnostics``): from a window's completion to its fit's end, the CPU time of the fit
+  itself in its process, and per window the difference (``wait_ms``): the hand-over to the
+  fit process and back and the time the fit waited for a CPU beside the other fit and the
+  message handling;
 - where the CPU went from the first move to the last result: the node's own process (its
   executor and message handling), its fit processes (and the CPU per window), and this
   process (the publisher thread and the result listener), each as a share of one CPU; the
@@ -352,10 +353,10 @@ def main() -> int:
          ' / '.join(f'{v:.0f}' for v in r['later'])
          + f' (the first windows: {", ".join(str(v) for v in r["firsts"])} ms)'),
         ("  the node's own, its last 200 windows: completion -> fit end; the fit's CPU "
-         'time in its process: median / p99 / max [ms]',
-         ' / '.join(str(r['node'].get(f'latency_ms_{q}', -1)) for q in ('median', 'p99', 'max'))
-         + '; ' + ' / '.join(str(r['node'].get(f'fit_cpu_ms_{q}', -1))
-                             for q in ('median', 'p99', 'max'))),
+         'time in its process; the rest (per window): median / p99 / max [ms]',
+         '; '.join(' / '.join(str(r['node'].get(f'{key}_{q}', -1))
+                              for q in ('median', 'p99', 'max'))
+                   for key in ('latency_ms', 'fit_cpu_ms', 'wait_ms'))),
         ('CPU from the first move to the last result [s]', _cpu_row(r)),
         ('resident memory start -> end [MiB]',
          f'{r["rss_start"]:.0f} -> {r["rss_end"]:.0f} (node + {r["children"]} child '

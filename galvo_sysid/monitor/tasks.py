@@ -146,6 +146,7 @@ class SysidTask:
         self.windows_completed = 0
         self._latencies: deque[float] = deque(maxlen=LATENCY_WINDOWS)
         self._fit_cpu: deque[float] = deque(maxlen=LATENCY_WINDOWS)
+        self._waits: deque[float] = deque(maxlen=LATENCY_WINDOWS)
         self._last_input = time.monotonic()
         self._lock = threading.Lock()
         self.last_mismatch: str | None = None
@@ -283,9 +284,11 @@ class SysidTask:
         w = outcome.window
         key = self._start_key(w)
         with self._lock:
-            self._latencies.append(outcome.queued + outcome.fit_time)
+            latency = outcome.queued + outcome.fit_time
+            self._latencies.append(latency)
             if math.isfinite(outcome.fit_cpu):
                 self._fit_cpu.append(outcome.fit_cpu)
+                self._waits.append(max(latency - outcome.fit_cpu, 0.0))
             start = None if outcome.result is None else WarmStart.from_result(outcome.result)
             if start is not None:
                 self._keep(self._starts, key, start)
@@ -341,15 +344,19 @@ class SysidTask:
                 'topic_lag_ms_max': round(1e3 * w.topic_lag), **self.latency_ms()}
 
     def latency_ms(self) -> dict[str, int]:
-        """Latency from a window's completion to the end of its fit, and the CPU time of the
-        fit itself (where it ran) [ms]: median, 99th percentile and largest over the last
-        :data:`LATENCY_WINDOWS` windows finished (the CPU time over those identified; -1 each
-        before the first). The latency less the fit's CPU is the wait for a fit process,
-        the hand-over to it and back, and the time the fit waited for a CPU."""  # noqa: D205, D209
+        """Latency from a window's completion to the end of its fit, the CPU time of the
+        fit itself (where it ran), and per window the latency less that CPU time [ms]: the
+        wait for a fit process, the hand-over to it and back, and the time the fit waited for
+        a CPU (``wait_ms``; a machine short of CPU shows there, a slow fit in ``fit_cpu_ms``).
+        Each as median, 99th percentile and largest over the last :data:`LATENCY_WINDOWS`
+        windows finished (the CPU and wait over those identified; -1 each before the
+        first)."""  # noqa: D205, D209
         with self._lock:
             latencies = np.array(self._latencies, dtype=float)
             cpu = np.array(self._fit_cpu, dtype=float)
-        return {**_spread(latencies, 'latency_ms'), **_spread(cpu, 'fit_cpu_ms')}
+            waits = np.array(self._waits, dtype=float)
+        return {**_spread(latencies, 'latency_ms'), **_spread(cpu, 'fit_cpu_ms'),
+                **_spread(waits, 'wait_ms')}
 
     def health(self, since: Mapping[str, int], *,
                now: Mapping[str, int] | None = None) -> tuple[int, str]:

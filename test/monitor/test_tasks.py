@@ -404,6 +404,7 @@ def test_sysid_task_reports_the_latency_of_its_windows() -> None:
     task = SysidTask(lambda w: fake_result(), lambda o: None, warn=lambda _: None)
     assert task.stats()['latency_ms_p99'] == -1  # nothing finished yet
     assert task.stats()['fit_cpu_ms_p99'] == -1
+    assert task.stats()['wait_ms_max'] == -1
     for i, seconds in enumerate([0.010, 0.020, 0.030, 0.040, 1.0]):
         task._done(FitOutcome(window(i), fake_result(), None, queued=seconds / 2,
                               fit_time=seconds / 2, fit_cpu=seconds / 4))
@@ -415,12 +416,15 @@ def test_sysid_task_reports_the_latency_of_its_windows() -> None:
     assert stats['latency_ms_p99'] == round(float(np.percentile([10, 20, 30, 40, 1000, 2000],
                                                                 99)))
     assert (stats['fit_cpu_ms_median'], stats['fit_cpu_ms_max']) == (8, 250)  # 7.5 rounds up
+    # each window's latency less its own fit's CPU (3/4 of it here), not of the spreads
+    assert (stats['wait_ms_median'], stats['wait_ms_max']) == (22, 750)  # 22.5 rounds down
     for i in range(300):  # only the last 200 count
         task._done(FitOutcome(window(i), fake_result(), None, queued=0.0, fit_time=0.005,
                               fit_cpu=0.004))
     assert task.latency_ms() == {'latency_ms_median': 5, 'latency_ms_p99': 5,
                                  'latency_ms_max': 5, 'fit_cpu_ms_median': 4,
-                                 'fit_cpu_ms_p99': 4, 'fit_cpu_ms_max': 4}
+                                 'fit_cpu_ms_p99': 4, 'fit_cpu_ms_max': 4,
+                                 'wait_ms_median': 1, 'wait_ms_p99': 1, 'wait_ms_max': 1}
 
 
 def test_the_scheduler_measures_each_fits_cpu_time_where_it_runs() -> None:
