@@ -16,13 +16,16 @@ numbers do not change.
 
 The blocks are registered with :mod:`multiprocessing`'s resource tracker, which removes
 them if the process that made them is killed; :meth:`WindowBuffer.close` removes them
-otherwise. Where shared memory cannot be had (no ``/dev/shm``, or it is full), the window
-goes through the pipe as before (:meth:`WindowBuffer.put` returns None).
+otherwise. Where shared memory cannot be had (no ``/dev/shm``, or it is full: a block's
+memory is reserved when it is made, so a full ``/dev/shm`` is an error there, not a SIGBUS
+at the first write), the window goes through the pipe as before (:meth:`WindowBuffer.put`
+returns None).
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 from dataclasses import dataclass, replace
 from multiprocessing import shared_memory
 from typing import TYPE_CHECKING
@@ -87,7 +90,7 @@ class WindowBuffer:
                 self._block.size > max(SHRINK * size, 1 << 20):
             self.close()
             try:
-                self._block = shared_memory.SharedMemory(create=True, size=size)
+                self._block = _allocated(size)
             except OSError:
                 self.failed = True
                 return None
@@ -105,6 +108,25 @@ class WindowBuffer:
             block.close()
             with contextlib.suppress(FileNotFoundError):  # removed already (the tracker)
                 block.unlink()
+
+
+def _allocated(size: int) -> shared_memory.SharedMemory:
+    """A new block of ``size`` bytes, its memory reserved now.
+
+    A block is a file in ``/dev/shm`` (tmpfs) whose pages are found only when first written:
+    into a full ``/dev/shm`` that write would kill the process with SIGBUS. Reserving them
+    (``posix_fallocate``) fails instead with an OSError the caller can take.
+    """
+    block = shared_memory.SharedMemory(create=True, size=size)
+    fd = getattr(block, '_fd', -1)  # POSIX: the block's file
+    if fd >= 0 and hasattr(os, 'posix_fallocate'):
+        try:
+            os.posix_fallocate(fd, 0, size)
+        except OSError:
+            block.close()
+            block.unlink()
+            raise
+    return block
 
 
 def take_window(ticket: Ticket) -> Window:

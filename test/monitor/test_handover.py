@@ -200,3 +200,31 @@ def test_a_killed_scheduler_leaves_no_block_behind(tmp_path: Path) -> None:
     while any(_exists(n) for n in names) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not any(_exists(n) for n in names)
+
+
+def test_a_full_dev_shm_is_found_when_a_block_is_made_and_the_pipe_serves(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Into a full tmpfs the first write of a block's page kills the process with SIGBUS; the
+    block's memory is reserved when it is made, so that fails as an error instead."""
+    made: list[str] = []
+    real = handover.shared_memory.SharedMemory
+
+    def recorded(*args: Any, **kwargs: Any) -> Any:
+        block = real(*args, **kwargs)
+        made.append(block.name)
+        return block
+
+    def full(fd: int, offset: int, length: int) -> None:
+        raise OSError(28, 'No space left on device')
+
+    monkeypatch.setattr(handover.shared_memory, 'SharedMemory', recorded)
+    monkeypatch.setattr(handover.os, 'posix_fallocate', full)
+    buffer = WindowBuffer()
+    try:
+        assert buffer.put(_window(0, 10)) is None
+        assert buffer.failed
+        assert buffer.put(_window(1, 10)) is None  # not tried again
+    finally:
+        buffer.close()
+    assert len(made) == 1
+    assert not _exists(made[0])  # the block that could not be reserved is removed
