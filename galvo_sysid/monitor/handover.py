@@ -118,8 +118,8 @@ def _allocated(size: int) -> shared_memory.SharedMemory:
     (``posix_fallocate``) fails instead with an OSError the caller can take.
     """
     block = shared_memory.SharedMemory(create=True, size=size)
-    fd = getattr(block, '_fd', -1)  # POSIX: the block's file
-    if fd >= 0 and hasattr(os, 'posix_fallocate'):
+    if hasattr(os, 'posix_fallocate'):  # Linux (not macOS)
+        fd: int = block._fd  # type: ignore[attr-defined]  # its file (POSIX; not in the stubs)
         try:
             os.posix_fallocate(fd, 0, size)
         except OSError:
