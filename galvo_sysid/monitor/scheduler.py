@@ -14,7 +14,8 @@ when asked (``ordered``). Both users share it:
   window order (the drift monitor judges the windows in order), so the numbers do not depend
   on the number of processes.
 
-:func:`fit_window` is the fit both use.
+:func:`fit_window` is the fit both use. A fit process gets each window's records through
+shared memory (:mod:`~galvo_sysid.monitor.handover`), not pickled through the pool's pipe.
 """
 
 from __future__ import annotations
