@@ -175,14 +175,32 @@ class JointProblem:
         records have one length share the candidates' transforms (made once, not once per
         window: the same numbers).
         """  # noqa: D205
+        gain, k = self._scan(i, omega, zeta, lag, w_c, z_c, others=False)
+        return gain, k[1 + i]
+
+    def scan_residues(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
+                      lag: float, w_c: NDArray[np.float64],
+                      z_c: NDArray[np.float64]) -> tuple[NDArray[np.float64],
+                                                         NDArray[np.float64]]:
+        """:meth:`scan` with all shared residues [k0, k_1 .. k_n] at each candidate, (1 + n, m).
+
+        The other modes' residues and k0 are solved anew with each candidate in place of
+        mode i (:meth:`WindowProblem.scan_residues`; the windows' weighted mean).
+        """
+        return self._scan(i, omega, zeta, lag, w_c, z_c, others=True)
+
+    def _scan(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64], lag: float,
+              w_c: NDArray[np.float64], z_c: NDArray[np.float64], *,
+              others: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         gain = np.zeros(w_c.size)
-        k_sum = np.zeros(w_c.size)
+        k_sum = np.zeros((1 + self.n_modes, w_c.size))
         total = 0.0
         shared = {}
         for prob, wt in zip(self.problems, self.weights, strict=True):
             if prob.n not in shared:
                 shared[prob.n] = prob.candidate_transforms(lag, w_c, z_c)
-            g, k = prob.scan(i, omega, zeta, lag, w_c, z_c, shared=shared[prob.n])
+            g, k = prob.scan_residues(i, omega, zeta, lag, w_c, z_c, shared=shared[prob.n],
+                                      others=others)
             gain += wt * wt * g
             k_sum += wt * wt * k
             total += wt * wt

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import fft as sp_fft
-from scipy.linalg import qr
+from scipy.linalg import qr, solve_triangular
 
 from galvo_sysid.errors import InvalidDataError
 from galvo_sysid.ident.refine.regressors import (
@@ -326,18 +326,24 @@ class WindowProblem:
 
     @staticmethod
     def _gains(others: NDArray[np.float64], y: NDArray[np.float64],
-               cand: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(cost reduction, forced coefficient) of each candidate's 3 columns after others.
+               cand: NDArray[np.float64], keep: int = 0) -> tuple[
+                   NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """(cost reduction, forced coefficient, others' coefficients) of each candidate's 3
+        columns after ``others``.
 
-        ``cand`` is (rows, 3, m), as :meth:`_candidates` gives it.
-        """
+        ``cand`` is (rows, 3, m), as :meth:`_candidates` gives it. The third array holds the
+        coefficients of the first ``keep`` columns of ``others`` with each candidate's columns
+        in the regression, (keep, m) (none by default).
+        """  # noqa: D205
         scale = np.linalg.norm(others, axis=0)
         scale[scale == 0] = 1.0
-        q, _ = qr(others / scale, mode='economic', check_finite=False)
-        r_o = y - q @ (q.T @ y)
+        q, r = qr(others / scale, mode='economic', check_finite=False)
+        qty = q.T @ y
+        r_o = y - q @ qty
         rows, _, m = cand.shape
         flat = cand.reshape(rows, 3 * m)  # the candidates' columns: two products, not m
-        flat_o = flat - q @ (q.T @ flat)
+        qtf = q.T @ flat
+        flat_o = flat - q @ qtf
         c_o = flat_o.reshape(rows, 3, m)
         gram = np.empty((m, 3, 3))
         for i in range(3):
@@ -347,10 +353,15 @@ class WindowProblem:
         try:
             sol = np.linalg.solve(gram, rhs[..., None])[..., 0]
         except np.linalg.LinAlgError:
-            return np.full(m, -1.0), np.zeros(m)
+            return np.full(m, -1.0), np.zeros(m), np.zeros((keep, m))
         gain = np.sum(rhs * sol, axis=1)
         gain[~np.isfinite(gain)] = -1.0
-        return np.asarray(gain, dtype=np.float64), np.asarray(sol[:, 0], dtype=np.float64)
+        kept = np.zeros((keep, m))
+        if keep:  # others' coefficients: R c = Q^T (y - candidate columns x sol)
+            proj = qty[:, None] - np.einsum('pcm,mc->pm', qtf.reshape(-1, 3, m), sol)
+            kept = (solve_triangular(r, proj, check_finite=False) / scale[:, None])[:keep]
+        return (np.asarray(gain, dtype=np.float64), np.asarray(sol[:, 0], dtype=np.float64),
+                np.asarray(kept, dtype=np.float64))
 
     def scan(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
              lag: float, w_c: NDArray[np.float64], z_c: NDArray[np.float64], *,
@@ -360,11 +371,31 @@ class WindowProblem:
 
         ``shared``: the candidates' :meth:`candidate_transforms` (same lag), if already made.
         """
+        gain, k = self.scan_residues(i, omega, zeta, lag, w_c, z_c, shared=shared,
+                                     others=False)
+        return gain, k[1 + i]
+
+    def scan_residues(self, i: int, omega: NDArray[np.float64], zeta: NDArray[np.float64],
+                      lag: float, w_c: NDArray[np.float64], z_c: NDArray[np.float64], *,
+                      shared: Candidates | None = None, others: bool = True) -> tuple[
+                          NDArray[np.float64], NDArray[np.float64]]:
+        """:meth:`scan` with every shared coefficient [k0, k_1 .. k_n] at each candidate.
+
+        Returns ``(cost reduction, residues (1 + n, m))``: mode i's row is the
+        candidate's own residue; the others' rows (``others``, else zeros) are the other
+        modes' residues and k0 solved anew with the candidate in place of mode i.
+        """
         n = self.n_modes
         phi = self.columns(omega, zeta, lag)
         mine = np.array([1 + i, 1 + n + 2 * i, 2 + n + 2 * i])
-        return self._gains(np.delete(phi, mine, axis=1), self.yf,
-                           self._candidates(lag, w_c, z_c, shared))
+        gain, k, kept = self._gains(np.delete(phi, mine, axis=1), self.yf,
+                                    self._candidates(lag, w_c, z_c, shared),
+                                    keep=n if others else 0)
+        out = np.zeros((1 + n, k.size))
+        if others:
+            out[np.arange(1 + n) != 1 + i] = kept
+        out[1 + i] = k
+        return gain, out
 
     def scan_new(self, omega: NDArray[np.float64], zeta: NDArray[np.float64], lag: float,
                  w_c: NDArray[np.float64], z_c: NDArray[np.float64]) -> NDArray[np.float64]:
