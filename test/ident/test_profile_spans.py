@@ -80,13 +80,64 @@ def test_a_neighbours_residue_is_widened_to_its_span_over_the_modes_profile() ->
 
 
 def test_a_fit_at_its_bands_edge_is_open_when_plausible_inside() -> None:
+    """Open where the fit is at an edge (within 0.05 %) and its plausible frequencies reach
+    one step of the band's grid inside (a step exactly counts); not where they stop short of
+    it, nor for a fit inside the band."""
     lo, hi = 1000.0, 2000.0
     step = (hi / lo) ** (1.0 / (_POINTS - 1))
-    assert _profile(omega=(hi / step ** 3, hi)).open_at_edge((lo, hi), hi)
-    assert not _profile(omega=(hi / step ** 0.5, hi)).open_at_edge((lo, hi), hi)
-    assert _profile(omega=(lo, lo * step * 1.01)).open_at_edge((lo, hi), lo * 1.0001)
-    assert not _profile(omega=(lo, lo * 1.001)).open_at_edge((lo, hi), lo)
-    assert not _profile(omega=(1200.0, 1900.0)).open_at_edge((lo, hi), 1500.0)  # inside
+    at_top, at_bottom = hi / 1.0005, lo * 1.0005
+    for omega in (hi, at_top):
+        assert _profile(omega=(hi / step ** 3, hi)).open_at_edge((lo, hi), omega)
+        assert _profile(omega=(hi / step, hi)).open_at_edge((lo, hi), omega)
+        assert not _profile(omega=(hi / step ** 0.99, hi)).open_at_edge((lo, hi), omega)
+    for omega in (lo, at_bottom):
+        assert _profile(omega=(lo, lo * step)).open_at_edge((lo, hi), omega)
+        assert not _profile(omega=(lo, lo * step ** 0.99)).open_at_edge((lo, hi), omega)
+    for inside in (hi / 1.001, lo * 1.001, 1500.0):
+        assert not _profile(omega=(lo, hi)).open_at_edge((lo, hi), inside)
+
+
+def test_the_band_profile_keeps_every_residues_span_over_its_plausible_points() -> None:
+    """profile_modes: each band-scanned mode's ``residue_spans`` hold k0 and every residue;
+    its own is its ``k_span`` (the same points), and each span holds the fit's value (the
+    scan's first candidate is the fit). A mode with evidence beyond the band scan's has
+    none."""
+    from galvo_sysid.ident.refine.profile import SEARCHED_EVIDENCE, profile_modes
+
+    r = REFERENCE_MODEL
+    joint, band_list, polish = _fit_problem([simulate_window(PSI, moves=30, seed=3)])
+    x = polish(joint.pack(r.natural_frequencies, r.damping_ratios, 0.6 * TAU))
+    shared = joint.solve(x)[0]
+    profiles = profile_modes(joint, x, band_list)
+    assert any(p.residue_spans for p in profiles)
+    for i, p in enumerate(profiles):
+        if p.evidence >= SEARCHED_EVIDENCE:
+            assert p.residue_spans == ()
+            continue
+        assert len(p.residue_spans) == 1 + r.n_modes
+        assert p.residue_spans[1 + i] == p.k_span
+        for (a, b), value in zip(p.residue_spans, shared, strict=True):
+            assert a - 1e-9 * abs(value) <= value <= b + 1e-9 * abs(value)
+
+
+def test_a_mode_the_data_hold_beyond_its_bands_edge_is_still_a_mismatch() -> None:
+    """The third mode just above its band's top (0.6 % and 2 %), excited less than the
+    paper's: the fit ends at the top, plausible there alone (the data ask for a mode beyond
+    the band), and the window is refused as before."""
+    from openloop_data import open_loop_window
+
+    from galvo_sysid.errors import ModelMismatchError
+    from galvo_sysid.ident.refine import refine_fit
+    from galvo_sysid.model import ModalModel
+
+    r = REFERENCE_MODEL
+    weaker = ModalModel(k0=r.k0, residues=(*r.residues[:2], -1.5e6),
+                        natural_frequencies=r.natural_frequencies, damping_ratios=r.damping_ratios)
+    cur, enc = open_loop_window(PSI, moves=20, model=weaker, seed=1)
+    for off in (0.006, 0.02):
+        bands = ((5.5e4, 9.2e4), (9.2e4, 1.41e5), (1.41e5, r.natural_frequencies[2] / (1 + off)))
+        with pytest.raises(ModelMismatchError, match='no physical mode 3 in the band'):
+            refine_fit(cur, enc, sample_period=TAU, initial=r, bands=bands)
 
 
 def _scanner14_window(seed: int) -> tuple[Any, Any]:
