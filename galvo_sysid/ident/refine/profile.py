@@ -14,8 +14,13 @@ the cost is scanned over a grid of its band and of damping ratios, the other mod
   lies 4 std away too (a quadratic cost's std is the same by both; a long flat shoulder,
   where a lightly damped fit sits on a noise peak beside a broad true resonance, is not cut
   at the lower level: :func:`_span`);
+- the other residues and k0, solved anew at each of those points, widen likewise (after
+  the test of which modes are resolved): where the mode could lie elsewhere, a neighbour
+  sharing its response could have another residue (:attr:`ModeProfile.residue_spans`);
 - a mode that lowers the cost by less than :data:`MODE_EVIDENCE`, or whose plausible
-  frequencies cover half its band, is not resolved;
+  frequencies cover half its band, is not resolved; nor is a fit at its band's edge that is
+  as plausible a grid step inside (:meth:`ModeProfile.open_at_edge`: held there by the band,
+  not by the data, so no sign of a mode outside the band either);
 - the band's grid steps about 1 % in frequency, coarser than a lightly damped mode's basin:
   a resolved mode is profiled again one grid step either side of its fit, finely, and its
   span reaches where that profile crosses the level (:func:`check_linearised`).
