@@ -168,24 +168,25 @@ def test_a_weak_mode_held_at_its_bands_edge_is_unresolved_not_a_mismatch() -> No
 
 def test_a_neighbours_residue_counts_where_the_weak_mode_could_lie(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """Seed 273: mode 5 unresolved, plausible over much of its band; the fourth mode's
-    residue, solved with mode 5 at the fit, claimed 3.2 std from the truth (k4 shares mode
-    5's response). Its span along mode 5's profile widens its std (to 1.3 std); the rest
-    stands."""
-    sc, r = _scanner14_window(273)
+    """Seed 64: mode 5 unresolved, plausible over much of its band; the fourth mode's
+    residue, solved with mode 5 at the fit, claims 2.5 std from the truth (k4 shares mode
+    5's response). Its span along mode 5's profile widens its std (to 1.4 std); the rest
+    stands. (Seed 273 showed it, 3.2 std to 1.3, with the noise model before its first pass
+    was made coarse and its steps started from it.)"""
+    sc, r = _scanner14_window(64)
     assert r.resolved == (True, True, True, True, False)
 
     def z_k4(res: Any) -> float:
         return float((res.residues[3] - sc.model.modal.residues[3]) / res.residues_std[3])
 
-    assert abs(z_k4(r)) < 2.0
+    assert abs(z_k4(r)) < 1.6
     own_only = fit.widen_to_profiles
 
     def without_neighbours(*args: Any, **kwargs: Any) -> None:
         own_only(*args, **{**kwargs, 'neighbours': False})
 
     monkeypatch.setattr(fit, 'widen_to_profiles', without_neighbours)
-    _, old = _scanner14_window(273)
-    assert abs(z_k4(old)) > 3.0
+    _, old = _scanner14_window(64)
+    assert abs(z_k4(old)) > 2.4
     assert old.residues == r.residues
     assert old.natural_frequencies_std[:4] == r.natural_frequencies_std[:4]

@@ -89,14 +89,14 @@ class JointProblem:
         mean at x, each move's own nuisance (the ringing, lag state and offset it starts
         with) taken out by expectation-maximisation
         (:func:`~galvo_sysid.ident.refine.whitener.stationary_noise_model`: first pass with
-        ``order`` lags or a third of the rows if more, second with ``order``): the
+        ``order`` lags, second with ``order`` or a third of the rows if more): the
         maximum-likelihood weighting of the window's average, whose own nuisance columns
         absorb that ringing. (The deviations whole would count the ringing as noise: on a
         short record where a mode rings through, it fills the valley the mode's antiresonance
         cuts into the noise spectrum, and the fit weighs down the rows that carry the mode:
         omega_1 of ``random_scanner(1)`` came out with 6 times the bound's rms error, now
         1.3.) The window is whitened by one map of that model: its prediction-error map with
-        as many lags as the first pass
+        as many lags as the second pass
         (:meth:`~galvo_sysid.ident.refine.whitener.WhitenerChain.single`; the two passes composed
         have both passes' lags, a head of rows half again as long for the same estimates:
         ``benchmarks/efficiency.py`` gave the same errors and bounds to a few percent, each
@@ -133,7 +133,7 @@ class JointProblem:
             if dev is None or nuis is None:
                 dev = prob.deviations(omega, zeta, lag, coef)
                 nuis = prob.columns(omega, zeta, lag, whitened=False)[:, 1 + n:]
-            found = stationary_noise_model(dev, nuis, lags, second_order=order)
+            found = stationary_noise_model(dev, nuis, lags, first_order=order)
             if found is not None:
                 chain, var = found
                 model = NoiseModel(tuple(float(v) for v in chain.autocovariance(lags)), var,
@@ -436,16 +436,16 @@ def _fisher(prob: WindowProblem, dev: NDArray[np.float64], omega: NDArray[np.flo
     nuisance's share (the Schur complement), with the stationary noise model that
     :func:`~galvo_sysid.ident.refine.whitener.stationary_noise_model` estimates from the
     moves' deviations ``dev`` (unwhitened) under their own nuisance: its first pass with the
-    fit's lags or a third of the rows if more (a long record resolves the noise's sharp
-    resonance peaks, where the modes' information is, only with that many: with 128 the
-    bound of ``random_scanner(0)``'s omega_1 is 0.65 of the exact one, with 554 0.81), its
-    second with the fit's. ``fallback`` (the fit's ``J^T J``) when the deviations do not
+    fit's lags, its second with those or a third of the rows if more (a long record resolves
+    the noise's sharp resonance peaks, where the modes' information is, only with that many:
+    with 128 the bound of ``random_scanner(0)``'s omega_1 is 0.65 of the exact one, with 554
+    0.81). ``fallback`` (the fit's ``J^T J``) when the deviations do not
     scatter.
     """
     jac, nuis = _jacobian(prob, omega, zeta, lag, coef, phys, joint.estimate_lag, False)
     found = stationary_noise_model(
         dev, nuis, max(joint.whiten_order, dev.shape[1] // BOUND_ORDER_DIVISOR),
-        second_order=joint.whiten_order)
+        first_order=joint.whiten_order)
     if found is None:
         return fallback
     wh, var = found
