@@ -425,16 +425,17 @@ def stationary_noise_model(dev: NDArray[np.float64], nuisance: NDArray[np.float6
     power_y = np.sum(f_y.real**2 + f_y.imag**2, axis=1)
     rows = min(lags, n)
     # the first E-step with the first pass as the model: the nuisance (p, M) and M times its
-    # conditional covariance
+    # conditional covariance (where the whitened columns are singular, each move's
+    # least-squares nuisance and none)
     q_0, r_0 = np.linalg.qr(y_q)
     res_0 = y - q_0 @ (q_0.T @ y)
     var_0 = float(np.sum(res_0 * res_0) / (m * max(n - p, 1)))
     try:
         beta = np.linalg.solve(r_0, q_0.T @ y)
         spread_0 = np.linalg.inv(r_0)
+        extra = m * var_0 * (spread_0 @ spread_0.T)
     except np.linalg.LinAlgError:
-        return None
-    extra = m * var_0 * (spread_0 @ spread_0.T)
+        beta, extra = q.T @ dev.T, np.zeros((p, p))
 
     def whiten(second: Whitener, x: NDArray[np.float64], f_x: NDArray[np.complex128],
                f_filter: NDArray[np.complex128]) -> NDArray[np.float64]:
