@@ -258,3 +258,21 @@ def test_the_deviations_times_columns_need_no_deviations(delay: int, fraction: f
                                rtol=0, atol=1e-14 * scale)
     assert not np.allclose(prob.deviations_times(omega, zeta, 2 * lag + LAG, coef, cols), want,
                            rtol=0, atol=1e-6 * scale)
+
+
+@pytest.mark.parametrize(('rows', 'order', 'first_order', 'taps'),
+                         [(300, 128, None, (129, 129)), (300, 200, 128, (129, 151)),
+                          (600, 200, 128, (129, 201)), (600, 100, 128, (101, 101))])
+def test_the_noise_models_passes_have_their_lags_up_to_half_the_rows(
+        rows: int, order: int, first_order: int | None, taps: tuple[int, int]) -> None:
+    """The first pass has ``first_order`` lags (``order`` if None or more), the second
+    ``order``; neither more than half the rows (a lag needs that many products per move)."""
+    from galvo_sysid.ident.refine.whitener import stationary_noise_model
+
+    rng = np.random.default_rng(5)
+    dev = rng.standard_normal((20, rows))
+    nuisance = np.ones((rows, 1))
+    found = stationary_noise_model(dev - dev.mean(axis=1, keepdims=True), nuisance, order,
+                                   1, first_order=first_order)
+    assert found is not None
+    assert tuple(stage.filter.size for stage in found[0].stages) == taps
