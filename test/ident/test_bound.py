@@ -89,9 +89,7 @@ def _k0_efficiency_of_the_weighting(first_order: int | None) -> float:
         nuis = prob.columns(omega, zeta, lag, whitened=False)[:, 1 + plant.modal.n_modes:]
         found = stationary_noise_model(dev, nuis, rows // 3, first_order=first_order)
         assert found is not None
-        whiten = np.eye(rows)
-        for stage in found[0].stages:
-            whiten = stage.matrix(rows) @ whiten
+        whiten = found[0].apply(np.eye(rows))
     phys = np.concatenate([omega, zeta, [t]])
     jac, nuis = _jacobian(prob, omega, zeta, lag, coef, phys, True, False)
     sigma = toeplitz(residual_noise_autocovariance(cfg, enc.shape[1])[:rows]) / prob.moves
