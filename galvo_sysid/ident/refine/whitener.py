@@ -391,8 +391,9 @@ def stationary_noise_model(dev: NDArray[np.float64], nuisance: NDArray[np.float6
     start with. A fine first pass of the projected deviations has a false peak or hole
     there; a coarse one is smooth across it. On ``random_scanner(30)`` (1,240 rows, 413
     lags) the fine first pass and the least-squares start gave k0 an rms error 1.5 times
-    its bound (the weighting of the lowest frequencies 30 times too low), now 1.08; the
-    other scanners of the family lose no efficiency, several a few percent less.
+    its bound (the weighting of the lowest frequencies 30 times too low), now 1.08. On
+    ``benchmarks/efficiency.py``'s other conditions the worst efficiency of each moved by at
+    most 0.03 either way (2026-11-27).
 
     Each step adds about 1 ms to 3 ms of a window of 100 moves of 339 rows. At a
     lightly damped mode's frequency the noise is barely identifiable from the scatter (every
