@@ -53,6 +53,7 @@ Usage (from the repository root; about 7 minutes for the default 400 seeds, 2 pr
 
     python benchmarks/efficiency.py
     python benchmarks/efficiency.py --seeds 8 --scanners 0 1
+    python benchmarks/efficiency.py --family-only --scanners 33 34 35  # scanners alone
 """
 
 from __future__ import annotations
@@ -147,8 +148,19 @@ def shaped(shape: str, samples: int) -> ProfileConfig:
     return ProfileConfig(shape=shape, min_duration=samples * TAU, peak_current=PEAK_LIMIT)
 
 
-def conditions(scanners: tuple[int, ...] = SCANNERS) -> list[Condition]:
-    """The family (see the module docs)."""
+def conditions(scanners: tuple[int, ...] = SCANNERS, *,
+               family_only: bool = False) -> list[Condition]:
+    """The family (see the module docs); with ``family_only`` the generated scanners alone."""
+    out = []
+    for seed in scanners:
+        sc = random_scanner(seed)
+        angle = min(sc.angles, key=lambda a: abs(a - PSI))
+        out.append(Condition(f'scanner-{seed}', sc.config, angle, sc.describe()))
+    return out if family_only else _paper_conditions() + out
+
+
+def _paper_conditions() -> list[Condition]:
+    """The paper's scanner under the excitation conditions of the module docs."""
     base = SimulatorConfig()
     weak = replace(base, profile=shaped(*WEAK))
     step = base.encoder_resolution
@@ -164,10 +176,6 @@ def conditions(scanners: tuple[int, ...] = SCANNERS) -> list[Condition]:
             Condition('current-20mA', replace(base, current_noise_std=0.02), PSI),
             Condition('encoder-0.5step', replace(base, measurement_noise_std=0.5 * step), PSI),
             Condition('encoder-3step', replace(base, measurement_noise_std=3.0 * step), PSI)]
-    for seed in scanners:
-        sc = random_scanner(seed)
-        angle = min(sc.angles, key=lambda a: abs(a - PSI))
-        out.append(Condition(f'scanner-{seed}', sc.config, angle, sc.describe()))
     return out
 
 
@@ -383,6 +391,9 @@ def main(argv: list[str] | None = None) -> int:
                         help='processes (each window is timed in its own; 1 on a busy machine)')
     parser.add_argument('--scanners', type=int, nargs='*', default=list(SCANNERS),
                         help='seeds of the generated scanners')
+    parser.add_argument('--family-only', action='store_true',
+                        help="only the generated scanners (--scanners), not the paper's "
+                             'excitation conditions')
     parser.add_argument('--warm', type=int, default=0, metavar='N',
                         help="start each window from the previous seed's result, as the sysid "
                              "node does, in chains of N seeds (each chain's first afresh); "
@@ -391,7 +402,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.warm < 0:
         parser.error('--warm must be 0 or more')
     start = time.perf_counter()
-    family = conditions(tuple(args.scanners))
+    family = conditions(tuple(args.scanners), family_only=args.family_only)
     how = (f", each started from the previous seed's result in chains of {args.warm} (the "
            f"sysid node's warm start)" if args.warm else '')
     print(f'efficiency against the Cramer-Rao bound: {len(family)} conditions, one window of '

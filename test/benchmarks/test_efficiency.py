@@ -48,6 +48,12 @@ def test_the_family_builds_by_its_rules() -> None:
     assert 'samples' in eff.describe(by_name['no-notch-600Hz'])
 
 
+def test_the_family_alone_is_its_scanners_in_order() -> None:
+    family = eff.conditions((5, 2), family_only=True)
+    assert [c.name for c in family] == ['scanner-5', 'scanner-2']
+    assert family == eff.conditions((5, 2))[-2:]
+
+
 def test_parameter_stats_arithmetic() -> None:
     # errors +-1, +-3 (relative), bound 2 everywhere, reported std 1 (z = error)
     wins = [_window({'k0': e, 'k1': e}, {'k0': 2.0, 'k1': 2.0}, {'k0': e, 'k1': e},
