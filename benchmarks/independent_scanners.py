@@ -131,7 +131,7 @@ def one_scanner(seed: int, *, angles: list[float], moves: int, work: Path,
     if current == 'measured':  # as the warning says: commission the measured current
         warned = [] if com.returncode else json.loads(com.stdout).get('warnings', [])
         com = _run(['commission', str(bag), '--out', str(commissioned), '--json',
-                    '--measured-current'])
+                    '--measured-current', '--force'])
         if com.returncode == 0:
             held = ['--measured-current', repr(json.loads(com.stdout)['measured_current_lag'])]
     found: dict[str, Any] = {'error': com.stderr.strip()} if com.returncode else \

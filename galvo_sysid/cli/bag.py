@@ -14,11 +14,13 @@ _DESCRIPTION = (
     '\n'
     'recover (alias reindex): make a bag readable whose recording was killed, crashed or\n'
     'ran out of disk, keeping what is on disk: for mcap, every chunk up to the first\n'
-    'damaged byte (the unfinished rest is cut, the index and footer are written); for\n'
-    'sqlite3, every committed batch (the half-written one is rolled back). Then\n'
-    "metadata.yaml is written from what the storage file holds (like 'ros2 bag reindex').\n"
-    'Prints what was kept and what was lost. A complete bag is left as it is (only its\n'
-    'metadata.yaml is rewritten); a bag still being recorded is refused.')
+    'damaged byte (the rest is cut and kept beside it, in <file>.cut, the index and\n'
+    'footer are written); for sqlite3, every committed batch (the half-written one is\n'
+    'rolled back). Then metadata.yaml is written from what the storage file holds (like\n'
+    "'ros2 bag reindex'). Prints what was kept and what was lost. A complete, undamaged bag\n"
+    'is left as it is (only its metadata.yaml is rewritten); a bag still being recorded is\n'
+    'refused. A .mcap or .db3 file named among other such files of its directory is\n'
+    'recovered alone (no metadata.yaml is written there).')
 
 _EPILOG = (
     'examples:\n'

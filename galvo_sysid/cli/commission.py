@@ -10,7 +10,13 @@ import argparse
 import sys
 from typing import Any
 
-from galvo_sysid.cli.common import BAG_HELP, add_subcommand, positive, print_json
+from galvo_sysid.cli.common import (
+    BAG_HELP,
+    add_subcommand,
+    check_output,
+    positive,
+    print_json,
+)
 
 __all__ = ['add_parser', 'register', 'run']
 
@@ -52,7 +58,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         help="learn a healthy scanner's model file from a bag of its moves")
     p.add_argument('bag', help=BAG_HELP)
     p.add_argument('--out', required=True, metavar='MODEL.yaml',
-                   help='plant-model file to write')
+                   help='plant-model file to write (not over an existing file without --force)')
+    p.add_argument('--force', action='store_true',
+                   help='replace the --out file (and --plot) if it exists')
     p.add_argument('--plot', metavar='FILE',
                    help='also write the Bode plot, measured against the model (.png/.pdf/.svg)')
     p.add_argument('--json', action='store_true', help='print one JSON object on stdout')
@@ -89,8 +97,10 @@ def run(args: argparse.Namespace) -> int:
     from galvo_sysid.field.plots import check_plot_path
     from galvo_sysid.model.files import save_model
 
+    check_output(args.out, reads=args.bag, force=args.force, what='model file')
     if args.plot:
         check_plot_path(args.plot)
+        check_output(args.plot, reads=args.bag, force=True, what='plot file')
     verbose = not args.json and sys.stderr.isatty()
 
     def progress(text: str) -> None:

@@ -12,11 +12,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
-from galvo_sysid.errors import GalvoSysidError, one_line
+from galvo_sysid.errors import ConfigurationError, GalvoSysidError, one_line
 from galvo_sysid.jsonsafe import json_safe
 
 if TYPE_CHECKING:
@@ -29,6 +31,7 @@ __all__ = [
     'Progress',
     'add_subcommand',
     'bounded_int',
+    'check_output',
     'finite_float',
     'guarded',
     'nonnegative_int',
@@ -152,6 +155,64 @@ def _number(text: str, kind: type[int] | type[float], what: str, need: str,
         msg = f'must be {need}: {text!r}'
         raise argparse.ArgumentTypeError(msg)
     return value
+
+
+# --------------------------------------------------------------------------- outputs
+
+
+def _bag_area(bag: str | os.PathLike[str]) -> tuple[Path, ...]:
+    """What a bag argument reads: the directory, or the file and (where it lies in a bag
+    directory, beside its metadata.yaml) that directory."""  # noqa: D205, D209
+    path = Path(bag).expanduser().resolve()
+    if path.is_file() and (path.parent / 'metadata.yaml').is_file():
+        return path, path.parent
+    return (path,)
+
+
+def check_output(path: str | os.PathLike[str], *, reads: str | os.PathLike[str],
+                 force: bool, what: str, directory: bool = False) -> Path:
+    """Refuse, before any work, an output a subcommand would write where it must not.
+
+    Never into the bag it reads (its file, its directory or anything in it); never onto a
+    directory (a file output) or a file (a directory output); not where the directory above
+    does not exist; and, without ``force``, not over an existing file or into a directory that
+    holds anything (bags, models and reports are not replaced silently).
+
+    Args:
+        path: The output (``--out FILE``, ``--save-model FILE``, ``--report DIR``).
+        reads: The bag the subcommand reads.
+        force: Replace an existing file, or write into a directory that holds files.
+        what: The output's name in messages (``'model file'``).
+        directory: The output is a directory (created if missing).
+
+    Returns:
+        The output's path.
+
+    Raises:
+        ConfigurationError: The output is refused (the message says why, and the option
+            that allows replacing where one does).
+    """
+    out = Path(path).expanduser()
+    target = out.resolve()
+    for area in _bag_area(reads):
+        if target == area or (area.is_dir() and area in target.parents):
+            msg = f'{what} {out} would be written into the bag it reads ({reads}): choose ' \
+                  f'another place'
+            raise ConfigurationError(msg)
+    if not target.parent.is_dir():
+        raise ConfigurationError(f'the directory of the {what} does not exist: {out.parent}')
+    if directory:
+        if target.exists() and not target.is_dir():
+            raise ConfigurationError(f'{what} {out} exists and is not a directory')
+        if target.is_dir() and any(target.iterdir()) and not force:
+            msg = f'{what} {out} holds files already; give --force to write into it'
+            raise ConfigurationError(msg)
+        return out
+    if target.is_dir():
+        raise ConfigurationError(f'{what} {out} is a directory; give a file name')
+    if target.exists() and not force:
+        raise ConfigurationError(f'{what} {out} exists already; give --force to replace it')
+    return out
 
 
 # --------------------------------------------------------------------------- running

@@ -13,7 +13,14 @@ import sys
 from typing import TYPE_CHECKING, Any
 
 from galvo_sysid import keep_freed_memory, limit_blas_threads
-from galvo_sysid.cli.common import HelpFormatter, finite_float, guarded, positive, print_json
+from galvo_sysid.cli.common import (
+    HelpFormatter,
+    check_output,
+    finite_float,
+    guarded,
+    positive,
+    print_json,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -101,9 +108,14 @@ def _arguments(p: argparse.ArgumentParser, threshold: float,
                    help='plant model to compare with (default: the nominal model: Table I, '
                         'one sample of DSP delay, amplifier lag 0.6 tau)')
     p.add_argument('--json', action='store_true', help='print one JSON object on stdout')
-    p.add_argument('--report', metavar='DIR', help='write figures and files into DIR')
+    p.add_argument('--report', metavar='DIR',
+                   help='write figures and files into DIR (new or empty, or with --force)')
     p.add_argument('--save-model', metavar='FILE',
-                   help='write the augmented model (YAML) to FILE')
+                   help='write the augmented model (YAML) to FILE (not over an existing file '
+                        'without --force)')
+    p.add_argument('--force', action='store_true',
+                   help='replace the --save-model file, and write into a --report directory '
+                        'that holds files')
     p.add_argument('--threshold', type=finite_float, default=threshold, metavar='S',
                    help='score (BIC drop) a candidate needs to be accepted')
     p.add_argument('--tolerance', type=finite_float, default=tolerance, metavar='T',
@@ -141,6 +153,11 @@ def run(args: argparse.Namespace) -> int:
     from galvo_sysid.discrepancy.workflow import find_discrepancy
     from galvo_sysid.model.files import load_model, save_model
 
+    if args.save_model:
+        check_output(args.save_model, reads=args.bag, force=args.force, what='model file')
+    if args.report:
+        check_output(args.report, reads=args.bag, force=args.force, what='report directory',
+                     directory=True)
     model = load_model(args.model)
     moves, rejected = read_moves(args.bag, namespace=args.namespace,
                                  max_moves_per_angle=args.max_moves_per_angle,

@@ -289,7 +289,7 @@ def check_plot_path(path: str | os.PathLike[str]) -> Path:
     """Return ``path`` if it names a writable plot file (.png, .pdf or .svg).
 
     Raises:
-        ConfigurationError: Unsupported file type or missing directory.
+        ConfigurationError: Unsupported file type, missing directory, or a directory.
     """
     out = Path(path)
     if out.suffix.lower() not in _FORMATS:
@@ -298,6 +298,8 @@ def check_plot_path(path: str | os.PathLike[str]) -> Path:
     if not out.parent.is_dir():
         msg = f'directory of the plot file does not exist: {out.parent}'
         raise ConfigurationError(msg)
+    if out.is_dir():
+        raise ConfigurationError(f'the plot file is a directory: {out}')
     return out
 
 

@@ -99,6 +99,33 @@ def test_commission_says_what_is_wrong_in_one_line(venv_bin: Path, tmp_path: Pat
     assert not (tmp_path / 'm.yaml').exists()
 
 
+def test_commission_never_writes_over_its_bag_nor_silently_over_a_model(
+        venv_bin: Path, tmp_path: Path) -> None:
+    """The model file is checked before the work: never into the bag read (its storage file
+    or metadata.yaml, which a user mistyping --out once destroyed), an existing file only
+    with --force (the reference model a watchdog uses is not replaced by accident)."""
+    simulate_bag(tmp_path / 'few', angles=[0.3], moves_per_angle=20, seed=1)
+    storage = next((tmp_path / 'few').glob('*.mcap'))
+    before = {p.name: p.read_bytes() for p in (tmp_path / 'few').iterdir()}
+    for out in (storage, tmp_path / 'few' / 'metadata.yaml', tmp_path / 'few' / 'm.yaml'):
+        proc = run(venv_bin, 'commission', tmp_path / 'few', '--out', out, '--force')
+        assert proc.returncode == 1, proc.stderr
+        assert proc.stderr.count('\n') == 1
+        assert 'would be written into the bag it reads' in proc.stderr
+    assert {p.name: p.read_bytes() for p in (tmp_path / 'few').iterdir()} == before
+    (tmp_path / 'm.yaml').write_text('kept')
+    proc = run(venv_bin, 'commission', tmp_path / 'few', '--out', tmp_path / 'm.yaml')
+    assert proc.returncode == 1
+    assert 'exists already; give --force to replace it' in proc.stderr
+    assert (tmp_path / 'm.yaml').read_text() == 'kept'
+    (tmp_path / 'plot.png').mkdir()
+    proc = run(venv_bin, 'commission', tmp_path / 'few', '--out', tmp_path / 'n.yaml',
+               '--plot', tmp_path / 'plot.png')
+    assert proc.returncode == 1
+    assert 'the plot file is a directory' in proc.stderr
+    assert not (tmp_path / 'n.yaml').exists()
+
+
 def test_a_measured_current_is_commissioned_and_identified_with_the_lag_found(
         venv_bin: Path, tmp_path: Path) -> None:
     """A bag whose current is the coil current measured with the encoder (scanner 1 of the

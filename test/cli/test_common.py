@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import io
 import math
+from pathlib import Path
 
 import pytest
 
@@ -12,12 +13,14 @@ from galvo_sysid.cli.common import (
     HelpFormatter,
     Progress,
     add_subcommand,
+    check_output,
     finite_float,
     nonnegative_int,
     parse_angle,
     positive,
     print_json,
 )
+from galvo_sysid.errors import ConfigurationError
 
 
 def test_progress_bar_only_on_a_terminal_and_only_when_slow() -> None:
@@ -94,3 +97,50 @@ def test_help_shows_only_defaults_that_say_something() -> None:
 def test_print_json_is_one_line_of_strict_json(capsys: pytest.CaptureFixture[str]) -> None:
     print_json({'a': math.nan, 'b': (1.5, math.inf), 'c': 'x'})
     assert capsys.readouterr().out == '{"a": null, "b": [1.5, null], "c": "x"}\n'
+
+
+def _bag(tmp_path: Path) -> Path:
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    (bag / 'bag.mcap').write_bytes(b'data')
+    (bag / 'metadata.yaml').write_text('x')
+    return bag
+
+
+@pytest.mark.parametrize('where', ['bag', 'bag/bag.mcap', 'bag/metadata.yaml', 'bag/new.yaml'])
+@pytest.mark.parametrize('reads', ['bag', 'bag/bag.mcap'])
+def test_an_output_is_never_written_into_the_bag_it_reads(tmp_path: Path, where: str,
+                                                          reads: str) -> None:
+    bag = _bag(tmp_path)
+    with pytest.raises(ConfigurationError, match='into the bag it reads'):
+        check_output(tmp_path / where, reads=tmp_path / reads, force=True, what='model file')
+    assert (bag / 'bag.mcap').read_bytes() == b'data'
+
+
+def test_an_existing_output_is_replaced_only_with_force(tmp_path: Path) -> None:
+    bag = _bag(tmp_path)
+    model = tmp_path / 'model.yaml'
+    assert check_output(model, reads=bag, force=False, what='model file') == model
+    model.write_text('old')
+    with pytest.raises(ConfigurationError, match='exists already; give --force'):
+        check_output(model, reads=bag, force=False, what='model file')
+    assert check_output(model, reads=bag, force=True, what='model file') == model
+    with pytest.raises(ConfigurationError, match='is a directory'):
+        check_output(tmp_path, reads=bag, force=True, what='model file')
+    with pytest.raises(ConfigurationError, match='does not exist'):
+        check_output(tmp_path / 'no' / 'm.yaml', reads=bag, force=True, what='model file')
+
+
+def test_a_report_directory_is_new_empty_or_forced(tmp_path: Path) -> None:
+    bag = _bag(tmp_path)
+    report = tmp_path / 'report'
+    assert check_output(report, reads=bag, force=False, what='report', directory=True) == report
+    report.mkdir()
+    assert check_output(report, reads=bag, force=False, what='report', directory=True) == report
+    (report / 'summary.txt').write_text('old')
+    with pytest.raises(ConfigurationError, match='holds files already; give --force'):
+        check_output(report, reads=bag, force=False, what='report', directory=True)
+    assert check_output(report, reads=bag, force=True, what='report', directory=True) == report
+    with pytest.raises(ConfigurationError, match='not a directory'):
+        check_output(report / 'summary.txt', reads=bag, force=True, what='report',
+                     directory=True)

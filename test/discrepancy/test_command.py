@@ -38,6 +38,13 @@ def test_cli_on_a_bag(tmp_path, capsys):
                  'gain_change', 'coulomb_friction']) == 0
     text = capsys.readouterr().out
     assert 'verdict: consistent: the model explains the moves within the noise' in text
+    # the augmented model exists: not replaced without --force, never into the bag
+    stored = augmented.read_bytes()
+    assert main(['discrepancy', str(bag), '--save-model', str(augmented)]) == 1
+    assert 'exists already; give --force' in capsys.readouterr().err
+    assert augmented.read_bytes() == stored
+    assert main(['discrepancy', str(bag), '--report', str(bag), '--force']) == 1
+    assert 'into the bag it reads' in capsys.readouterr().err
     assert main(['discrepancy', str(tmp_path / 'missing')]) == 1
     assert 'error' in capsys.readouterr().err
     bad = tmp_path / 'bad.yaml'

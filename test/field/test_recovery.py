@@ -210,6 +210,53 @@ def test_recover_stops_at_a_damaged_chunk(tmp_path: Path,
     assert _assert_prefix(bag, 5) == result.messages
 
 
+def test_a_finished_bag_damaged_inside_keeps_what_is_cut_beside_it(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A complete file (footer and all) with one chunk damaged: the recovery keeps the chunks
+    before it in the bag and the rest, byte for byte, in ``<file>.cut`` (a second recovery
+    does not overwrite it); no reader takes the ``.cut`` file for the bag's storage."""
+    original = _small_chunk_bag(tmp_path / 'whole', 30, 5, monkeypatch)
+    chunks = _chunks(original)
+    bag = tmp_path / 'damaged'
+    shutil.copytree(original.parent, bag)
+    file = bag / original.name
+    data = bytearray(file.read_bytes())
+    start, end, _ = chunks[4]
+    data[(start + end) // 2] ^= 0xFF
+    file.write_bytes(bytes(data))
+    result = recover(bag)
+    assert result.messages == sum(n for _, _, n in chunks[:4])
+    assert result.cut_to == file.with_name(file.name + '.cut')
+    assert result.cut_to.read_bytes() == bytes(data[len(data) - result.dropped_bytes:])
+    assert f'kept in {result.cut_to}' in result.summary()
+    assert _assert_prefix(bag, 5) == result.messages
+    with file.open('ab') as f:  # damaged again at its end: a second cut, its own file
+        f.write(b'\x00' * 100)
+    again = recover(bag)
+    assert again.cut_to == file.with_name(file.name + '.cut.1')
+    assert result.cut_to.read_bytes() == bytes(data[len(data) - result.dropped_bytes:])
+
+
+def test_a_storage_file_among_others_is_recovered_alone(tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """A cut .mcap file named among other .mcap files of its directory (not a bag
+    directory): that file is repaired, no metadata.yaml is written beside it."""
+    original = _small_chunk_bag(tmp_path / 'whole', 20, 3, monkeypatch)
+    chunks = _chunks(original)
+    loose = tmp_path / 'loose'
+    loose.mkdir()
+    for name in ('a.mcap', 'b.mcap'):
+        shutil.copy(original, loose / name)
+    with (loose / 'b.mcap').open('r+b') as f:
+        f.truncate(chunks[5][1] + 3)
+    result = recover(loose / 'b.mcap')
+    assert result.alone
+    assert result.path == loose / 'b.mcap'
+    assert result.messages == sum(n for _, _, n in chunks[:6])
+    assert not (loose / 'metadata.yaml').exists()
+    assert (loose / 'a.mcap').read_bytes() == original.read_bytes()
+
+
 def test_recover_refuses_what_it_cannot_use(tmp_path: Path) -> None:
     with pytest.raises(BagError, match='not found'):
         recover(tmp_path / 'nope')

@@ -49,7 +49,7 @@ class Recovered:
     """What :func:`recover` kept.
 
     Attributes:
-        path: The bag directory.
+        path: The bag directory (the storage file, recovered ``alone``).
         storage: ``'mcap'`` or ``'sqlite3'``.
         messages: Messages the bag holds now.
         topics: Topics it holds.
@@ -61,6 +61,11 @@ class Recovered:
         interrupted: The bag was an unfinished recording.
         flush_interval: The recording's flush interval [s] (None: unknown): the messages
             received in about that time before the interruption were not yet written.
+        cut_to: Where the bytes cut from the storage file were kept (None: none cut): a
+            damaged chunk of a finished file may be followed by good ones, which are not
+            thrown away.
+        alone: The storage file was recovered on its own (its directory holds other bags'
+            files, so no ``metadata.yaml`` was written there).
     """
 
     path: Path
@@ -73,6 +78,8 @@ class Recovered:
     repaired: bool = False
     interrupted: bool = False
     flush_interval: float | None = None
+    cut_to: Path | None = None
+    alone: bool = False
 
     @property
     def seconds(self) -> float:
@@ -89,7 +96,9 @@ class Recovered:
 
         lost = []
         if self.dropped_bytes:
-            lost.append(f'cut {self.dropped_bytes:,} bytes of an unfinished chunk')
+            kept = f' (kept in {self.cut_to})' if self.cut_to is not None else ''
+            lost.append(f'cut {self.dropped_bytes:,} bytes from the first unfinished or '
+                        f'damaged chunk on{kept}')
         if self.rolled_back:
             lost.append('rolled back the batch being written')
         if self.interrupted and self.flush_interval is not None:
@@ -116,6 +125,11 @@ def recover(path: str | os.PathLike[str]) -> Recovered:
         raise BagNotFoundError(msg)
     bag = path if path.is_dir() else path.parent
     files = [f for f in _storage_files(bag) if _regular(f)]
+    # a storage file named among others of its directory (not a bag directory): that file
+    alone = not path.is_dir() and path.suffix in {'.mcap', '.db3'} and len(files) > 1 \
+        and not (bag / 'metadata.yaml').exists()
+    if alone:
+        files = [path]
     if len(files) != 1:
         msg = (f'not a rosbag2 bag: {bag} should hold one .mcap or .db3 file, '
                f'it holds {len(files)}')
@@ -137,19 +151,21 @@ def recover(path: str | os.PathLike[str]) -> Recovered:
     topics, span = result.topics, result.span
     info = bag_metadata(storage='mcap' if file.suffix == '.mcap' else 'sqlite3',
                         file_name=file.name, topics=topics, span=span)
-    tmp = bag / 'metadata.yaml.tmp'
-    tmp.write_text(metadata_text(info), 'utf8')
-    tmp.replace(bag / 'metadata.yaml')
-    with contextlib.suppress(OSError):
-        (bag / LOCK_NAME).unlink()
+    if not alone:
+        tmp = bag / 'metadata.yaml.tmp'
+        tmp.write_text(metadata_text(info), 'utf8')
+        tmp.replace(bag / 'metadata.yaml')
+        with contextlib.suppress(OSError):
+            (bag / LOCK_NAME).unlink()
     interval = None
     if marker is not None:
         with contextlib.suppress(ValueError):
             interval = float(marker.get(f'{RECORDING_KEY}.flush_interval', ''))
-    return Recovered(bag, info['storage_identifier'], sum(t.count for t in topics),
-                     len(topics), span if topics and sum(t.count for t in topics) else None,
+    return Recovered(file if alone else bag, info['storage_identifier'],
+                     sum(t.count for t in topics), len(topics),
+                     span if topics and sum(t.count for t in topics) else None,
                      result.dropped, result.rolled_back, result.repaired, marker is not None,
-                     interval)
+                     interval, result.cut_to, alone)
 
 
 @dataclass(frozen=True)
@@ -159,6 +175,22 @@ class _Result:
     dropped: int = 0
     rolled_back: bool = False
     repaired: bool = False
+    cut_to: Path | None = None
+
+
+def _keep_cut(file: Path, start: int) -> Path:
+    """Copy the bytes of ``file`` from ``start`` on into a new file beside it (``<name>.cut``,
+    or ``.cut.1``, ... where that exists); return its path."""  # noqa: D205, D209
+    out = file.with_name(file.name + '.cut')
+    n = 0
+    while out.exists() or out.is_symlink():
+        n += 1
+        out = file.with_name(f'{file.name}.cut.{n}')
+    with file.open('rb') as src, out.open('xb') as dst:
+        src.seek(start)
+        while block := src.read(1 << 20):
+            dst.write(block)
+    return out
 
 
 def _old_hashes(bag: Path) -> dict[str, str]:
@@ -198,6 +230,7 @@ def _recover_mcap(file: Path, hashes: dict[str, str]) -> _Result:
             hashes.setdefault(channel.topic, channel.meta('topic_type_hash'))
     repaired = False
     dropped = 0
+    cut_to = None
     if not (scan.complete and _mcap_state(file) == 'complete' and _reads(file)):
         if scan.loose:
             msg = (f'cannot recover {file}: it holds messages outside chunks (not a '
@@ -218,6 +251,7 @@ def _recover_mcap(file: Path, hashes: dict[str, str]) -> _Result:
         span = (min(t[0] for t in times), max(t[1] for t in times)) if times else None
         inner = bag_metadata(storage='mcap', file_name=file.name, topics=topics, span=span)
         dropped = size - scan.end
+        cut_to = _keep_cut(file, scan.end) if dropped else None
         storage = McapStorage.resume(file, end=scan.end, schemas=schemas, channels=channels,
                                      chunks=scan.chunks)
         try:
@@ -233,7 +267,8 @@ def _recover_mcap(file: Path, hashes: dict[str, str]) -> _Result:
         msg = f'cannot recover {file}: the repaired file does not read back: {reason(err)}'
         raise CorruptBagError(msg) from None
     try:
-        return _Result(_topics(reader, hashes), _span(reader), dropped, repaired=repaired)
+        return _Result(_topics(reader, hashes), _span(reader), dropped, repaired=repaired,
+                       cut_to=cut_to)
     finally:
         reader.close()
 
