@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model.changes import Drift, StepChange
 from galvo_sysid.model.paper import PAPER_MODEL
-from galvo_sysid.model.plant import PlantModel
+from galvo_sysid.model.plant import MAX_RECORD_LENGTH, PlantModel
 from galvo_sysid.sim.controller import ControllerConfig
 from galvo_sysid.sim.dither import DitherConfig
 from galvo_sysid.sim.profiles import ProfileConfig
@@ -111,6 +111,10 @@ class SimulatorConfig:
                 raise ConfigurationError(f'{name} must be a non-negative integer, got {value!r}')
         if self.record < 16:
             raise ConfigurationError('record_length must be at least 16 samples')
+        for name in ('record_length', 'dwell_length'):  # as a model file may declare
+            if getattr(self, name) > MAX_RECORD_LENGTH:
+                raise ConfigurationError(f'{name} must be at most {MAX_RECORD_LENGTH:,} '
+                                         f'samples, got {getattr(self, name):,}')
         if self.substeps < 1:
             raise ConfigurationError('substeps must be >= 1')
         if self.method not in METHODS:

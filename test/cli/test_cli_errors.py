@@ -114,6 +114,16 @@ def test_simulate_a_billion_moves_is_refused_at_once(tmp_path: Path) -> None:
     assert not (tmp_path / 'huge').exists()
 
 
+def test_simulate_a_record_longer_than_a_model_may_declare_is_refused_at_once(
+        tmp_path: Path) -> None:
+    """A record of 1e8 samples ran past two minutes with no output (a model file caps it
+    at 1,000,000; the option did not)."""
+    proc = run('simulate', '--out', tmp_path / 'long', '--moves-per-angle', '4',
+               '--record-length', '100000000', timeout=60)
+    assert_error_line(proc, 'simulate', 'record_length must be at most 1,000,000 samples')
+    assert not (tmp_path / 'long').exists()
+
+
 def test_simulate_absurd_effect_parameter(tmp_path: Path) -> None:
     proc = run('simulate', '--out', tmp_path / 's2', '--effect', 'input_delay:delay=1',
                '--moves-per-angle', '4')
