@@ -15,6 +15,7 @@ import math
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
@@ -227,13 +228,17 @@ def guarded(where: str, call: Callable[[], int]) -> int:
     ...) with their message; ``ValueError``, ``ArithmeticError`` and ``RecursionError`` (a
     numerics library refusing a value the checks let through) with their type's name too;
     ``MemoryError`` as such. Ctrl-C ends in ``<where>: interrupted`` and exit code 130.
+    NumPy's ``RuntimeWarning`` lines (overflow, division by zero in a hostile record, which
+    the checks then refuse or set aside in words of their own) are not printed.
 
     Args:
         where: The command as the error line names it (``galvo-sysid identify``).
         call: Runs the subcommand, returns its exit code.
     """
     try:
-        return int(call())
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore', RuntimeWarning)
+            return int(call())
     except (GalvoSysidError, OSError) as err:
         print(f'{where}: error: {one_line(err)}', file=sys.stderr)
     except MemoryError:

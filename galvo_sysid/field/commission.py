@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from galvo_sysid.errors import InvalidDataError
+from galvo_sysid.ident.preprocess import check_travel
 from galvo_sysid.monitor.parameters import defaults
 
 if TYPE_CHECKING:
@@ -139,13 +140,22 @@ def commission_bag(bag: str | os.PathLike[str], *, namespace: str | None = None,
     kinds = collections.Counter((w.sample_period, w.current.shape[1]) for w in windows)
     (period, samples), _ = kinds.most_common(1)[0]
     used = [w for w in windows if (w.sample_period, w.current.shape[1]) == (period, samples)]
-    set_aside = tuple(f'window {w.index} ({w.target_angle:g} deg): sample period '
-                      f'{w.sample_period:.6g} s and {w.current.shape[1]} samples, not '
-                      f'{period:.6g} s and {samples}'
-                      for w in windows if w not in used)
-    if len(used) < 2:
+    aside = [f'window {w.index} ({w.target_angle:g} deg): sample period '
+             f'{w.sample_period:.6g} s and {w.current.shape[1]} samples, not '
+             f'{period:.6g} s and {samples}' for w in windows if w not in used]
+    travelled = []  # windows whose moves travel their target angle (units, sign, topics)
+    for w in used:
+        try:
+            check_travel(w.encoder, w.target_angle)
+        except InvalidDataError as err:
+            aside.append(f'window {w.index} ({w.target_angle:g} deg): {err}')
+        else:
+            travelled.append(w)
+    if len(travelled) < 2:
+        why = f' ({aside[-1]})' if len(used) > len(travelled) else ''
         raise InvalidDataError(f'commissioning needs at least 2 windows of one sample period, '
-                               f'found {len(used)} in {bag}')
+                               f'found {len(travelled)} in {bag}{why}')
+    used, set_aside = travelled, tuple(aside)
     description = (f'commissioned by galvo-sysid from {Path(bag).name} on '
                    f'{time.strftime("%Y-%m-%d")}: {len(used)} windows, '
                    f'{sum(w.moves for w in used)} moves, '

@@ -95,6 +95,7 @@ from galvo_sysid.errors import ConfigurationError, InvalidDataError, one_line
 from galvo_sysid.field.bags import CURRENT_TOPIC, ENCODER_TOPIC, BagExistsError, BagWriter
 from galvo_sysid.field.bags.atomic import atomic_bag
 from galvo_sysid.field.simulate import check_space, write_move
+from galvo_sysid.ident.preprocess import MAX_ANGLE, TRAVEL_FACTOR, travels
 from galvo_sysid.interfaces.topics import MOVE_SAMPLES
 
 if TYPE_CHECKING:
@@ -144,8 +145,6 @@ MIN_SAMPLES = 32
 SAMPLE_PERIOD_RANGE = (1e-7, 0.1)
 """Sample periods accepted [s] (10 MHz to 10 Hz); a galvo's DSP samples at 10-100 kHz."""
 
-MAX_ANGLE = 90.0
-"""Largest target angle magnitude accepted [deg]."""
 
 _MIN_ANGLE = 1e-6
 """Smaller target angles [deg] are zero (the windower's ``angle_resolution``)."""
@@ -153,8 +152,6 @@ _MIN_ANGLE = 1e-6
 _MAX_STAMP = 2.0**31
 """Stamps must fit a ROS time (int32 seconds)."""
 
-_TRAVEL_FACTOR = 10.0
-"""The median encoder travel may be this many times larger or smaller than the target angle."""
 
 _MAT_NUMERIC = ('double', 'single', 'int8', 'uint8', 'int16', 'uint16', 'int32', 'uint32',
                 'int64', 'uint64')
@@ -615,8 +612,7 @@ def _check_travel(moves: Sequence[ImportedMove], where: str) -> None:
     """
     ratios = []
     for m in moves:
-        tail = max(1, m.encoder.shape[0] // 16)
-        travel = float(m.encoder[-tail:].mean() - m.encoder[0])
+        travel = float(travels(m.encoder))
         ratio = travel / m.target_angle
         if ratio < -0.5:
             raise InvalidDataError(
@@ -625,7 +621,7 @@ def _check_travel(moves: Sequence[ImportedMove], where: str) -> None:
                 f'that go back have a negative one)')
         ratios.append(ratio)
     median = float(np.median(ratios))
-    if not 1 / _TRAVEL_FACTOR <= median <= _TRAVEL_FACTOR:
+    if not 1 / TRAVEL_FACTOR <= median <= TRAVEL_FACTOR:
         raise InvalidDataError(
             f'{where}: the encoder travels {median:.4g} times the target angle (median over '
             f'the moves): is the encoder in degrees? (radians are 57.3 times smaller); the '

@@ -44,7 +44,12 @@ from galvo_sysid.errors import (
 )
 from galvo_sysid.ident.paper import paper_pipeline
 from galvo_sysid.ident.pool import pool_results
-from galvo_sysid.ident.preprocess import MIN_ANGLE_SPAN, validate_records
+from galvo_sysid.ident.preprocess import (
+    MIN_ANGLE_SPAN,
+    check_travel,
+    travels,
+    validate_records,
+)
 from galvo_sysid.ident.refine import DEFAULT_RESOLVE_Z as RESOLVE_Z
 from galvo_sysid.ident.refine import RefineOptions, model_fit_percent, refine_fit, refine_joint
 from galvo_sysid.ident.result import IdentificationResult, result_from_vectors
@@ -71,8 +76,7 @@ _JACKKNIFE_GROUPS = 10
 
 def _estimated_angle(enc: NDArray[np.float64]) -> float:
     """Median over the moves of the final angle minus the start angle [deg]."""
-    tail = max(1, enc.shape[1] // 16)
-    return float(np.median(enc[:, -tail:].mean(axis=1) - enc[:, 0]))
+    return float(np.median(travels(enc)))
 
 
 def _paper_window(cur: NDArray[np.float64], enc: NDArray[np.float64], *, sample_period: float,
@@ -194,6 +198,8 @@ def identify_window(current: ArrayLike, encoder: ArrayLike, *, sample_period: fl
     cur, enc = validate_records(current, encoder, na=paper_opts.get('na', 15),
                                 nb=paper_opts.get('nb', 15), min_angle_span=min_span)
     enc = enc - enc[:, :1]
+    if target_angle is not None:
+        check_travel(enc, float(target_angle))
     angle = _estimated_angle(enc) if target_angle is None else float(target_angle)
     moves = cur.shape[0]
     if method in ('paper-A', 'paper-B'):

@@ -23,13 +23,17 @@ if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
+    'MAX_ANGLE',
     'MIN_ANGLE_SPAN',
     'MIN_RECORDS',
+    'TRAVEL_FACTOR',
     'Records',
     'average_records',
+    'check_travel',
     'concatenate_records',
     'preprocess',
     'remove_start_angle',
+    'travels',
     'validate_records',
 ]
 
@@ -40,7 +44,49 @@ MIN_ANGLE_SPAN = 1e-3
 """Default smallest encoder span [deg] of the averaged record that counts as a move
 (25 steps of a 4e-5 deg encoder; the paper's smallest move is 0.03 deg)."""
 
+MAX_ANGLE = 90.0
+"""Largest target angle magnitude a move may have [deg] (a galvo turns a few tens of degrees)."""
+
+TRAVEL_FACTOR = 10.0
+"""The moves' median encoder travel may be this many times larger or smaller than their target
+angle: beyond, the encoder is in other units (radians are 57.3 times smaller, counts far
+larger), not a plant that moved differently (a closed loop reaches its target whatever the
+plant)."""
+
 Records = tuple['NDArray[np.float64]', 'NDArray[np.float64]']
+
+
+def travels(encoder: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Each move's travel [deg]: the mean of its record's last sixteenth minus its first
+    sample, (M,) of records (M, N)."""  # noqa: D205, D209
+    tail = max(1, encoder.shape[-1] // 16)
+    return np.asarray(encoder[..., -tail:].mean(axis=-1) - encoder[..., 0], dtype=np.float64)
+
+
+def check_travel(encoder: NDArray[np.float64], target_angle: float) -> None:
+    """Refuse a window whose moves do not travel their target angle.
+
+    Raises:
+        InvalidDataError: The target angle is beyond :data:`MAX_ANGLE`; the moves travel
+            against it (its sign is wrong); or their median travel is more than
+            :data:`TRAVEL_FACTOR` times off it (the encoder in radians or counts, or the
+            current and encoder topics swapped): one line, saying which.
+    """
+    if not abs(target_angle) <= MAX_ANGLE:
+        raise InvalidDataError(f'target angle {target_angle:.6g} deg is beyond '
+                               f'+-{MAX_ANGLE:g} deg: not a move of a galvano scanner')
+    travel = float(np.median(travels(encoder)))
+    ratio = travel / target_angle if target_angle else float('nan')
+    if ratio < -0.5:
+        raise InvalidDataError(
+            f'the moves travel {travel:+.4g} deg against their target angle '
+            f'{target_angle:+g} deg: moves that go back need a negative target angle (or '
+            f'are the current and encoder topics swapped?)')
+    if not 1.0 / TRAVEL_FACTOR <= ratio <= TRAVEL_FACTOR:
+        raise InvalidDataError(
+            f'the encoder travels {ratio:.4g} times the target angle {target_angle:+g} deg '
+            f'(median over the moves): is the encoder in degrees (radians are 57.3 times '
+            f'smaller), and are the current and encoder topics the right way round?')
 
 
 def validate_records(current: ArrayLike, encoder: ArrayLike, *, na: int = 15, nb: int = 15,

@@ -568,3 +568,26 @@ def test_a_measured_current_is_turned_into_the_held_current_that_drives_it(
     with pytest.raises(ConfigurationError, match='above 20'):
         import_bag(tmp_path / 'missing.npz', tmp_path / 'c', measured_lag=1e-3,
                    sample_period=1e-5)
+
+
+def test_an_encoder_in_radians_imported_unchecked_is_refused_by_identify_and_commission(
+        tmp_path: Path) -> None:
+    """The import's travel check turned off, a bag of an encoder in radians: each window is
+    refused in words (it was identified and judged a 98 % drift of k0, and commissioned into a
+    model with k0 57 times too small)."""
+    from galvo_sysid.field.commission import commission_bag
+
+    moves = list(GalvoSimulator(seed=3).moves(angles=[ANGLE], moves_per_angle=200))
+    arrays = {'current': np.array([m.current for m in moves]),
+              'encoder': np.radians(np.array([m.encoder for m in moves])),
+              'target_angle': np.array([m.target_angle for m in moves]),
+              'sample_period': PAPER_MODEL.sample_period}
+    bag = tmp_path / 'radians'
+    import_bag(save_npz(tmp_path / 'rad.npz', arrays), bag, check_travel=False)
+    found = identify_bag(bag)
+    assert not found.windows
+    reasons = {r['reason'] for r in found.rejected}
+    assert any('is the encoder in degrees (radians are 57.3 times smaller)' in r
+               for r in reasons), reasons
+    with pytest.raises(InvalidDataError, match=r'found 0 .*radians are 57\.3 times smaller'):
+        commission_bag(bag)

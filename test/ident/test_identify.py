@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ast
 import json
+import re
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -96,8 +97,24 @@ def test_result_fields_and_serialisation(windows_1psi: list) -> None:
     d = res.to_dict()
     assert tuple(d) == FIELDS
     assert json.loads(json.dumps(d))['residues'] == list(res.residues)
-    given = identify_window(cur, enc, sample_period=TAU, target_angle=-0.25)
-    assert given.target_angle == -0.25
+    given = identify_window(cur, enc, sample_period=TAU, target_angle=0.25)
+    assert given.target_angle == 0.25
+
+
+@pytest.mark.parametrize(('angle', 'words'), [
+    (-0.3, 'travel +0.3 deg against their target angle -0.3 deg'),
+    (0.3 * 57.3, 'travels 0.01745 times the target angle'),   # an encoder in radians
+    (0.3 / 57.3, 'travels 57.31 times the target angle'),
+    (1e300, 'beyond +-90 deg'),
+])
+def test_a_target_angle_the_moves_do_not_travel_is_refused_in_words(
+        windows_1psi: list, angle: float, words: str) -> None:
+    """The moves of a closed loop travel their target angle whatever the plant: a window whose
+    encoder travels otherwise has its units, its sign or its topics wrong, and is refused as
+    such (it was identified, and judged a 98 % drift of k0)."""
+    cur, enc = windows_1psi[0]
+    with pytest.raises(InvalidDataError, match=re.escape(words)):
+        identify_window(cur, enc, sample_period=TAU, target_angle=angle)
 
 
 def test_paper_methods(windows_1psi: list) -> None:
