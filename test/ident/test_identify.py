@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import ast
 import json
-import re
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -13,7 +13,12 @@ import numpy as np
 import pytest
 from openloop_data import open_loop_window
 
-from galvo_sysid.errors import ConfigurationError, IdentificationError, InvalidDataError
+from galvo_sysid.errors import (
+    ConfigurationError,
+    IdentificationError,
+    InvalidDataError,
+    ModelMismatchError,
+)
 from galvo_sysid.ident.identify import identify_joint, identify_window
 from galvo_sysid.ident.paper import paper_pipeline
 from galvo_sysid.ident.pool import pool_results
@@ -356,3 +361,14 @@ def test_joint_fit_starts_from_the_reference_when_no_window_fits_alone(
     joint = identify_joint(windows, sample_period=TAU)
     assert joint.model.n_modes == 3
     assert joint.moves == 40
+
+
+def test_a_model_of_the_rigid_body_alone_does_not_pass_a_scanner_with_resonances(
+        windows_1psi: list) -> None:
+    """Without bands the residual's check had no interval and a model with no modes fitted
+    the paper's scanner at 28 % with a warning at most; the whole spectrum is one interval."""
+    cur, enc = windows_1psi[0]
+    rigid = replace(PAPER_MODEL, modal=ModalModel(k0=PAPER_MODEL.modal.k0, residues=(),
+                                                  natural_frequencies=(), damping_ratios=()))
+    with pytest.raises(ModelMismatchError, match=r'the residual between .* times the noise'):
+        identify_window(cur, enc, sample_period=TAU, model=rigid, target_angle=PSI)

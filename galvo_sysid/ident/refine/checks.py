@@ -131,7 +131,8 @@ def residual_to_noise(resid: NDArray[np.float64], dev: NDArray[np.float64],
 
     The intervals cut the spectrum at every band edge: below the first band (from four
     periods per record on), between the bands, and above the last one up to 0.98 x Nyquist,
-    so a mode outside every band shows too. About 1 for an adequate model.
+    so a mode outside every band shows too; without bands (a model of the rigid body alone)
+    the whole of that range is one interval. About 1 for an adequate model.
     """
     m = dev.shape[0]
     win = np.hanning(resid.size)
@@ -143,6 +144,8 @@ def residual_to_noise(resid: NDArray[np.float64], dev: NDArray[np.float64],
     cuts = {e for band in band_list for e in band}
     if cuts:
         cuts |= {e for e in (lowest, top) if e < min(cuts) or e > max(cuts)}
+    else:  # a model of the rigid body alone: the whole spectrum is one interval
+        cuts = {lowest, top}
     edges = sorted(cuts)
     out = []
     for lo, hi in itertools.pairwise(edges):
