@@ -53,7 +53,27 @@ def _relative(text: str) -> tuple[str, float]:
     if not sep or not name or not math.isfinite(number):
         msg = f'expected PARAM=RELATIVE (e.g. omega_3=-0.01), got {text!r}'
         raise argparse.ArgumentTypeError(msg)
-    return name.strip(), number
+    name = name.strip()
+    if number <= -1.0 and (name == 'k0' or not name.startswith('k')):
+        msg = (f'{name} is positive: a relative change of {number:g} (to {1 + number:g} times '
+               f'it) cannot happen; e.g. {name}=-0.01 is 1 % down')
+        raise argparse.ArgumentTypeError(msg)
+    return name, number
+
+
+def _noise(unit: str) -> Any:
+    """An argument type: an rms noise [unit], above 0 and at most 10 (a galvo's current
+    noise is milliamperes, its encoder's a few micro-degrees)."""  # noqa: D205, D209
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f'not a number: {text!r}') from None
+        if not 0 < value <= 10:
+            raise argparse.ArgumentTypeError(f'must be > 0 and <= 10 {unit}: {text!r}')
+        return value
+    parse.__name__ = 'float'
+    return parse
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -79,9 +99,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument('--target', action='append', type=_relative, default=[],
                    metavar='PARAM=REL', help='a relative std wanted, e.g. zeta_3=0.1: the '
                    'smallest dither (at --dither-modes) that reaches it; repeatable')
-    p.add_argument('--current-noise', type=positive(float), default=None, metavar='A',
+    p.add_argument('--current-noise', type=_noise('A'), default=None, metavar='A',
                    help="rms current noise [A] (default: the simulator's)")
-    p.add_argument('--encoder-noise', type=positive(float), default=None, metavar='DEG',
+    p.add_argument('--encoder-noise', type=_noise('deg'), default=None, metavar='DEG',
                    help="rms encoder noise before quantisation [deg] (default: the simulator's)")
     p.add_argument('--json', action='store_true', help='print one JSON object on stdout')
     return p

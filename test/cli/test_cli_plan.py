@@ -30,3 +30,16 @@ def test_plan_json_and_errors() -> None:
     assert usage.returncode == 2
     assert 'expected PARAM=RELATIVE' in usage.stderr
     assert _plan('--dither', '2A').returncode == 2
+
+
+def test_plan_refuses_a_change_below_zero_and_an_absurd_noise() -> None:
+    """omega_3=-5 (to -4 times it) was planned as 171 moves; an encoder noise of 1e300 deg
+    ended in a singular matrix."""
+    for args, words in ((('--change', 'omega_3=-5'), 'omega_3 is positive'),
+                        (('--change', 'k0=-1'), 'k0 is positive'),
+                        (('--encoder-noise', '1e300'), 'must be > 0 and <= 10 deg'),
+                        (('--current-noise', 'inf'), 'must be > 0 and <= 10 A')):
+        proc = _plan(*args)
+        assert proc.returncode == 2, proc.stderr
+        assert words in proc.stderr.strip().splitlines()[-1]
+    assert _plan('--change', 'k2=-3').returncode == 0  # a residue may change its sign
