@@ -302,11 +302,15 @@ def find_discrepancy(moves: MoveSet, model: PlantModel = PAPER_MODEL, *,
     if unknown:
         raise ConfigurationError(f'unknown candidate effect(s) {unknown}; expected '
                                  f'{CANDIDATE_NAMES}')
-    if not (math.isfinite(threshold) and max_effects >= 0 and 0 <= min_improvement < 1
-            and math.isfinite(tolerance) and tolerance >= 1):
-        raise ConfigurationError(
-            'threshold must be finite, max_effects >= 0, 0 <= min_improvement < 1 and '
-            'tolerance >= 1')
+    for ok, what, value in ((math.isfinite(threshold), 'the threshold must be finite',
+                             threshold),
+                            (max_effects >= 0, 'max_effects must be >= 0', max_effects),
+                            (0 <= min_improvement < 1, 'min_improvement must be within 0..1',
+                             min_improvement),
+                            (math.isfinite(tolerance) and tolerance >= 1,
+                             'the tolerance must be >= 1 (noise gaps)', tolerance)):
+        if not ok:
+            raise ConfigurationError(f'{what}, got {value!r}')
     comp = Comparison(moves, model)
     if min_gap is None:
         min_gap = comp.noise_gap

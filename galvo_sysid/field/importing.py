@@ -736,8 +736,8 @@ def _whole(name: str, values: NDArray[Any], where: str) -> list[int]:
     if values.dtype.kind == 'f':
         bad = np.flatnonzero(values != np.round(values))
         if bad.size:
-            raise InvalidDataError(f'{where}: {name} {values[bad[0]]!r} (move {bad[0]}) is not '
-                                   f'a whole number')
+            raise InvalidDataError(f'{where}: {name} {float(values[bad[0]])!r} (move {bad[0]}) '
+                                   f'is not a whole number')
         if values.size and np.abs(values).max() >= 2.0**63:
             raise InvalidDataError(f'{where}: {name} too large')
     return [int(v) for v in values]

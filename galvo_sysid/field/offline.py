@@ -161,7 +161,9 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
         raise ConfigurationError(msg)
     min_moves = window_size // 2 if min_partial is None else int(min_partial)
     if min_moves < 2:  # an average needs two moves
-        msg = f'min_partial must be >= 2, got {min_moves}'
+        msg = f'min_partial must be >= 2, got {min_moves}' if min_partial is not None else (
+            f'window_size must be >= 4 (half a window, the smallest unfinished one identified, '
+            f'needs 2 moves), got {window_size}')
         raise ConfigurationError(msg)
     if int(jobs) < 1:
         msg = f'jobs must be >= 1, got {jobs}'

@@ -309,6 +309,7 @@ def check_space(path: Path, *, moves: int, samples: int) -> None:
     except OSError:
         return  # unknown: the write itself will say
     if need > free:
-        msg = (f'the bag would take about {need / 1e9:.3g} GB ({moves} moves of {samples} '
-               f'samples), more than the {free / 1e9:.3g} GB free on {where}')
+        msg = (f'the bag would take about {need / 1e9:.3g} GB ({moves * samples:,} samples '
+               f'of current and of encoder), more than the {free / 1e9:.3g} GB free on '
+               f'{where}')
         raise ConfigurationError(msg)

@@ -176,3 +176,19 @@ def test_discrepancy_refuses_hostile_model_files(tmp_path: Path, name: str, body
     proc = run('discrepancy', NOMINAL, '--max-moves-per-angle', '20', '--model', path,
                memory=1 << 30)
     assert_error_line(proc, 'discrepancy', str(path), *needles)
+
+
+@pytest.mark.parametrize(('args', 'command', 'words'), [
+    (('identify', '{bag}', '--window-size', '1'), 'identify',
+     'window_size must be >= 4 (half a window'),
+    (('simulate', '--out', '{file}/sub', '--moves-per-angle', '2'), 'simulate',
+     'is a file, not a directory'),
+])
+def test_messages_name_the_value_given(tmp_path: Path, args: tuple[str, ...], command: str,
+                                       words: str) -> None:
+    """`--window-size 1` said 'min_partial must be >= 2, got 0' (an option not given); a bag
+    under a file said 'File exists'."""
+    (tmp_path / 'file').write_text('x')
+    (tmp_path / 'bag').mkdir()
+    proc = run(*(a.format(bag=tmp_path / 'bag', file=tmp_path / 'file') for a in args))
+    assert_error_line(proc, command, words)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -232,3 +233,15 @@ def test_the_issues_independent_effects_are_named(hidden, effect, truth):
         assert result.parameters[key] == pytest.approx(value, **tolerance), key
     assert result.gap_after < 2 * result.noise_gap < 0.5 * result.gap_before
 
+
+
+@pytest.mark.parametrize(('option', 'value', 'words'), [
+    ('tolerance', 0.0, 'the tolerance must be >= 1 (noise gaps), got 0.0'),
+    ('threshold', math.inf, 'the threshold must be finite, got inf'),
+    ('max_effects', -1, 'max_effects must be >= 0, got -1'),
+    ('min_improvement', 1.0, 'min_improvement must be within 0..1, got 1.0'),
+])
+def test_a_bad_setting_is_named_with_its_value(option: str, value: float, words: str) -> None:
+    """One message listed all four conditions, whichever was broken."""
+    with pytest.raises(ConfigurationError, match=re.escape(words)):
+        find_discrepancy(None, **{option: value})  # type: ignore[arg-type]

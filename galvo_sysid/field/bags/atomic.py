@@ -49,6 +49,10 @@ def atomic_bag(path: str | os.PathLike[str]) -> Iterator[Path]:
         msg = f'output bag exists already, not overwriting: {final}'
         raise BagExistsError(msg)
     parent = final.parent
+    above = next((p for p in (parent, *parent.parents) if p.exists() or p.is_symlink()), None)
+    if above is not None and not above.is_dir():
+        msg = f'cannot write bag {final}: {above} is a file, not a directory'
+        raise BagError(msg)
     try:
         parent.mkdir(parents=True, exist_ok=True)
         work = Path(tempfile.mkdtemp(prefix=f'{PARTIAL_PREFIX}{final.name}-', dir=parent))
