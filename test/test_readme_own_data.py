@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from galvo_sysid.field import importing
+from galvo_sysid.ident import preprocess
 from galvo_sysid.model import PAPER_MODEL
 
 README = Path(__file__).resolve().parents[1] / 'README.md'
@@ -41,7 +42,7 @@ def test_the_limits_it_states_are_the_code_s() -> None:
     assert (low, high) == (1e-7, 0.1)
     for words in (f'records under {importing.MIN_SAMPLES} samples',
                   'a sample period outside 1e-7..0.1 s',
-                  f'beyond {importing.MAX_ANGLE:g} deg', '(1 GiB;'):
+                  f'beyond {preprocess.MAX_ANGLE:g} deg', '(1 GiB;'):
         assert words in text, words
     assert importing.MAX_BYTES == 1 << 30
     assert set(importing.CSV_COLUMNS) <= set(re.findall(r'`(\w+)`', text))

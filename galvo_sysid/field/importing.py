@@ -64,10 +64,11 @@ file, and the row, line or move): a required array or column missing; wrong shap
 non-numeric cells or arrays (text, booleans, complex, cell arrays, objects); NaN or infinity;
 an empty file or record; records shorter than :data:`MIN_SAMPLES`; current and encoder of
 different lengths; a sample period outside :data:`SAMPLE_PERIOD_RANGE`; a target angle zero
-(below 1e-6 deg) or beyond :data:`MAX_ANGLE`; move ids repeated or negative; stamps not
-increasing. And, unless turned off, the encoder's travel against the target angles: a move
-that travels against its target angle (one target angle given for moves that go both ways),
-or a median travel more than 10 times off the target angle (an encoder in radians or counts).
+(below 1e-6 deg) or beyond :data:`~galvo_sysid.ident.preprocess.MAX_ANGLE`; move ids
+repeated or negative; stamps not increasing. And, unless turned off, the encoder's travel
+against the target angles: a move that travels against its target angle (one target angle
+given for moves that go both ways), or a median travel more than 10 times off the target
+angle (an encoder in radians or counts).
 
 Memory is bounded: a file larger than ``max_bytes`` (default :data:`MAX_BYTES`) is refused
 from its size before it is read, and the arrays of an .npz or .mat file whose float64 size
@@ -108,7 +109,6 @@ __all__ = [
     'ARRAY_NAMES',
     'CSV_COLUMNS',
     'FORMATS',
-    'MAX_ANGLE',
     'MAX_BYTES',
     'MIN_SAMPLES',
     'SAMPLE_PERIOD_RANGE',

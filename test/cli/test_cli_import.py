@@ -16,7 +16,7 @@ from galvo_sysid.cli import import_data
 from galvo_sysid.cli.main import main
 from galvo_sysid.field import importing
 from galvo_sysid.field.bags.atomic import PARTIAL_PREFIX
-from galvo_sysid.ident import identify_window
+from galvo_sysid.ident import identify_window, preprocess
 from galvo_sysid.ident.warm import reference_start
 from galvo_sysid.model import PAPER_MODEL
 from galvo_sysid.sim.simulator import GalvoSimulator
@@ -225,7 +225,7 @@ def test_help_states_the_layout_and_the_limits(capsys: pytest.CaptureFixture[str
                   'move,current,encoder,target_angle', 'examples:', '--no-travel-check',
                   f'records under {importing.MIN_SAMPLES} samples',
                   'a sample period outside 1e-7..0.1 s',
-                  f'one beyond {importing.MAX_ANGLE:g} deg', '1 GiB'):
+                  f'one beyond {preprocess.MAX_ANGLE:g} deg', '1 GiB'):
         assert words in text, words
     assert '(default: None)' not in text
     assert importing.SAMPLE_PERIOD_RANGE == (1e-7, 0.1)  # as the help says
