@@ -88,6 +88,11 @@ _RANGES: dict[str, tuple[float, float]] = {
     if s.low is not None and s.high is not None}
 """The watchdog parameters' ranges: what the monitor accepts (one source)."""
 
+OTHER_UNITS = 10.0
+"""A rigid-body gain k0 this many times larger or smaller than the reference's is not drift
+(a coil's torque constant and a mirror's inertia age by percents): the window is a MISMATCH,
+another scanner or a current or encoder in other units, not an ERROR of the same scanner."""
+
 
 class ModalEstimate(Protocol):
     """What the monitor reads from an identification result (IdentificationResult fits).
@@ -271,6 +276,13 @@ class DriftMonitor:
             return self._mismatch(window_index, angle,
                                   f'the result has {n_modes} resonant mode(s), the reference '
                                   f'{self.reference.n_modes}')
+        gain = values[0] / self._ref[0] if self._ref[0] else math.nan
+        if math.isfinite(gain) and not 1.0 / OTHER_UNITS <= abs(gain) <= OTHER_UNITS:
+            return self._mismatch(
+                window_index, angle,
+                f"k0 is {gain:.3g} times the reference's: not drift but another scanner, or "
+                f'the current or the encoder in other units (mA are 1000 times A, radians '
+                f'57.3 times smaller than degrees)')
         resolved = tuple(bool(r) for r in getattr(result, 'resolved', ()) or ())
         unresolved = [i for i, r in enumerate(resolved, start=1) if not r] \
             if len(resolved) == n_modes else []

@@ -203,6 +203,24 @@ def test_wrong_mode_count_is_a_mismatch_and_nan_an_error_verdict() -> None:
     assert DriftMonitor().assess(bad, window_index=2).level == ERROR
 
 
+@pytest.mark.parametrize('scale', [1e-3, 0.05, 20.0])
+def test_a_gain_off_by_more_than_ten_times_is_another_scanner_or_unit_not_drift(
+        scale: float) -> None:
+    """A current in mA (k0 1000 times too small) was judged an ERROR drift of -99.9 %; ten
+    times and more either way is a MISMATCH that names units; five times is still drift."""
+    ref = REFERENCE_MODEL.parameters()
+    rel = {n: scale - 1.0 for n in ('k0', 'k1', 'k2', 'k3')}
+    v = DriftMonitor().assess(result(rel), window_index=0)
+    assert v.level == MISMATCH
+    assert f"k0 is {scale:.3g} times the reference's" in v.message
+    assert 'mA are 1000 times A' in v.message
+    assert v.flagged == ()
+    five = DriftMonitor().assess(result({'k0': 4.0}), window_index=1)
+    assert five.level == ERROR
+    assert five.relative_deviation[NAMES.index('k0')] == pytest.approx(4.0)
+    assert ref['k0'] > 0
+
+
 def test_stale_and_json() -> None:
     mon = DriftMonitor()
     s = mon.stale(window_index=3, age=12.5)
