@@ -175,9 +175,10 @@ def check_output(path: str | os.PathLike[str], *, reads: str | os.PathLike[str],
     """Refuse, before any work, an output a subcommand would write where it must not.
 
     Never into the bag it reads (its file, its directory or anything in it); never onto a
-    directory (a file output) or a file (a directory output); not where the directory above
-    does not exist; and, without ``force``, not over an existing file or into a directory that
-    holds anything (bags, models and reports are not replaced silently).
+    directory (a file output) or a file (a directory output); a file not where the directory
+    above does not exist (a directory output is made with its parents); and, without
+    ``force``, not over an existing file or into a directory that holds anything (bags, models
+    and reports are not replaced silently).
 
     Args:
         path: The output (``--out FILE``, ``--save-model FILE``, ``--report DIR``).
@@ -200,15 +201,18 @@ def check_output(path: str | os.PathLike[str], *, reads: str | os.PathLike[str],
             msg = f'{what} {out} would be written into the bag it reads ({reads}): choose ' \
                   f'another place'
             raise ConfigurationError(msg)
-    if not target.parent.is_dir():
-        raise ConfigurationError(f'the directory of the {what} does not exist: {out.parent}')
-    if directory:
+    if directory:  # made with its parents: the nearest existing one must be a directory
+        above = next(p for p in (target, *target.parents) if p.exists())
+        if above != target and not above.is_dir():
+            raise ConfigurationError(f'{what} {out}: {above} is a file, not a directory')
         if target.exists() and not target.is_dir():
             raise ConfigurationError(f'{what} {out} exists and is not a directory')
         if target.is_dir() and any(target.iterdir()) and not force:
             msg = f'{what} {out} holds files already; give --force to write into it'
             raise ConfigurationError(msg)
         return out
+    if not target.parent.is_dir():
+        raise ConfigurationError(f'the directory of the {what} does not exist: {out.parent}')
     if target.is_dir():
         raise ConfigurationError(f'{what} {out} is a directory; give a file name')
     if target.exists() and not force:

@@ -144,3 +144,8 @@ def test_a_report_directory_is_new_empty_or_forced(tmp_path: Path) -> None:
     with pytest.raises(ConfigurationError, match='not a directory'):
         check_output(report / 'summary.txt', reads=bag, force=True, what='report',
                      directory=True)
+    deep = tmp_path / 'new' / 'deeper' / 'report'  # made with its parents
+    assert check_output(deep, reads=bag, force=False, what='report', directory=True) == deep
+    with pytest.raises(ConfigurationError, match='is a file, not a directory'):
+        check_output(report / 'summary.txt' / 'sub', reads=bag, force=False, what='report',
+                     directory=True)
