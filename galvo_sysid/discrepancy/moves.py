@@ -17,25 +17,20 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from galvo_sysid.errors import ConfigurationError, InvalidDataError
+from galvo_sysid.ident.preprocess import MAX_SAMPLE_MAGNITUDE
 
 if TYPE_CHECKING:
     import os
 
     from numpy.typing import ArrayLike, NDArray
 
-__all__ = ['MAX_SAMPLE_MAGNITUDE', 'MoveSet', 'implausible_samples', 'read_moves']
+__all__ = ['MoveSet', 'implausible_samples', 'read_moves']
 
-MAX_SAMPLE_MAGNITUDE = 1e6
-"""Largest magnitude of a sample taken as a measurement: current [A], encoder angle [deg].
-
-A galvano scanner's currents stay below 100 A and its angles within +-30 deg; a record beyond
-this is corrupt or rescaled (1e300-scaled records overflowed the comparison's spectra into a
-LinAlgError). Such a move is set aside with the reason, the others are used."""
 
 
 def implausible_samples(current: ArrayLike, encoder: ArrayLike) -> str | None:
     """Why a move's records are no measurement (NaN/Inf, or beyond
-    :data:`MAX_SAMPLE_MAGNITUDE`), or None."""  # noqa: D205, D209
+    :data:`~galvo_sysid.ident.preprocess.MAX_SAMPLE_MAGNITUDE`), or None."""  # noqa: D205, D209
     for name, values in (('current', current), ('encoder', encoder)):
         x = np.asarray(values, dtype=float)
         if not np.all(np.isfinite(x)):
@@ -76,7 +71,8 @@ class MoveSet:
 
         Raises:
             InvalidDataError: Wrong shapes, NaN/Inf or samples beyond
-                :data:`MAX_SAMPLE_MAGNITUDE`, fewer than 16 samples, zero angles.
+                :data:`~galvo_sysid.ident.preprocess.MAX_SAMPLE_MAGNITUDE`, fewer than 16
+                samples, zero angles.
             ConfigurationError: Bad sample period.
         """
         cur = np.atleast_2d(np.asarray(current, dtype=float))

@@ -24,6 +24,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     'MAX_ANGLE',
+    'MAX_SAMPLE_MAGNITUDE',
     'MIN_ANGLE_SPAN',
     'MIN_RECORDS',
     'TRAVEL_FACTOR',
@@ -46,6 +47,15 @@ MIN_ANGLE_SPAN = 1e-3
 
 MAX_ANGLE = 90.0
 """Largest target angle magnitude a move may have [deg] (a galvo turns a few tens of degrees)."""
+
+MAX_SAMPLE_MAGNITUDE = 1e6
+"""Largest magnitude of a sample taken as a measurement: current [A], encoder angle [deg].
+
+A galvano scanner's currents stay below 100 A and its angles within +-30 deg; a record beyond
+this is corrupt or rescaled (1e300-scaled records overflowed the discrepancy comparison's
+spectra, and a window's fit, into a LinAlgError). Such a move is set aside with the reason
+(:func:`~galvo_sysid.ident.screen.screen_moves`, the discrepancy workflow's moves), the others
+are used."""
 
 TRAVEL_FACTOR = 10.0
 """The moves' median encoder travel may be this many times larger or smaller than their target

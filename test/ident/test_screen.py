@@ -71,7 +71,17 @@ def test_non_finite_and_absurd_moves_are_set_aside() -> None:
     res = identify_window(cur, enc, sample_period=TAU)
     assert sorted(i for i, _ in res.set_aside) == [3, 7]
     assert 'NaN' in dict(res.set_aside)[7]
+    assert 'beyond +-1e+06 (A or deg)' in dict(res.set_aside)[3]
     assert res.moves == 98
+
+
+def test_a_window_of_absurdly_scaled_moves_is_refused_in_words() -> None:
+    """Every move 1e300 times too large: the gross check compares moves with each other, so
+    none stood out and the fit ended in 'unexpected LinAlgError: singular matrix'."""
+    cur, enc = _window(seed=4)
+    with pytest.raises(InvalidDataError, match=r'no move of the window is usable: the first has '
+                                               r'samples beyond \+-1e\+06'):
+        identify_window(cur * 1e300, enc, sample_period=TAU)
 
 
 def test_a_small_glitch_below_the_limit_is_kept() -> None:
