@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from galvo_sysid.errors import ConfigurationError, InvalidDataError
-from galvo_sysid.ident.preprocess import MAX_SAMPLE_MAGNITUDE
+from galvo_sysid.ident.preprocess import MAX_SAMPLE_MAGNITUDE, TRAVEL_FACTOR, travels
 
 if TYPE_CHECKING:
     import os
@@ -219,6 +219,12 @@ def read_moves(bag: str | os.PathLike[str], *, namespace: str | None = None,
         usable[id(w)] = []
         for row, mid in enumerate(w.move_ids):
             why = implausible_samples(w.current[row], w.encoder[row])
+            travel = float(travels(w.encoder[row]))
+            if why is None and not 1.0 / TRAVEL_FACTOR <= travel / w.target_angle <= \
+                    TRAVEL_FACTOR:  # a closed loop travels its target angle whatever the plant
+                why = (f'the move travels {travel:+.4g} deg for a target angle of '
+                       f'{w.target_angle:+g} deg: the encoder in other units, the sign of the '
+                       f'angle or the topics wrong')
             if why is None:
                 usable[id(w)].append(row)
             else:
@@ -248,7 +254,8 @@ def read_moves(bag: str | os.PathLike[str], *, namespace: str | None = None,
             ang.append(w.target_angle)
             ids.append(mid)
     if not ids:
-        raise InvalidDataError(f'{bag}: no target angle has {min_moves} usable moves')
+        why = f" (set aside, e.g.: {rejected[0]['reason']})" if rejected else ''
+        raise InvalidDataError(f'{bag}: no target angle has {min_moves} usable moves{why}')
     order = np.argsort(ids, kind='stable')
     id_arr = np.array(ids)[order]
     return MoveSet.create(np.array(cur)[order], np.array(enc)[order], np.array(ang)[order],

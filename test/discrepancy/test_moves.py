@@ -62,3 +62,31 @@ def test_a_minority_record_length_is_set_aside(tmp_path):
     assert found.samples == len(moves[1].current)
     assert [r['move_id'] for r in rejected] == [0]
     assert rejected[0]['reason'].startswith('record of 40 samples at 1e-05 s, most moves have')
+
+
+def test_moves_that_do_not_travel_their_target_angle_are_set_aside_with_the_reason(tmp_path):
+    """An encoder in radians (or a flipped sign, swapped topics): each move is set aside in
+    words; with none left the error names why (it was `SVD did not converge` on all-zero
+    moves, and the encoder-error bound's words on an absurd angle)."""
+    from dataclasses import replace
+
+    from galvo_sysid.field.bags import CURRENT_TOPIC, ENCODER_TOPIC, BagWriter
+    from galvo_sysid.field.simulate import write_moves
+    from galvo_sysid.interfaces.topics import MOVE_SAMPLES
+    from galvo_sysid.sim.simulator import GalvoSimulator
+
+    moves = list(GalvoSimulator(seed=2).moves(angles=[0.3], moves_per_angle=6))
+    moves = [replace(m, encoder=np.radians(m.encoder)) if i % 2 else m
+             for i, m in enumerate(moves)]
+    path = tmp_path / 'radians'
+    with BagWriter(path) as bag:
+        bag.add_topic(CURRENT_TOPIC, MOVE_SAMPLES)
+        bag.add_topic(ENCODER_TOPIC, MOVE_SAMPLES)
+        write_moves(bag, moves)
+    found, rejected = read_moves(path)  # +0.3 deg: moves 0, 2, 4; -0.3 deg (radians): 1, 3, 5
+    assert found.move_id.tolist() == [0, 2, 4]
+    assert [r['move_id'] for r in rejected] == [1, 3, 5]
+    assert 'deg for a target angle of -0.3 deg' in rejected[0]['reason']
+    with pytest.raises(InvalidDataError, match='no target angle has 4 usable moves '
+                                               r'\(set aside, e\.g\.: the move travels'):
+        read_moves(path, min_moves=4)
