@@ -219,7 +219,7 @@ def read_moves(bag: str | os.PathLike[str], *, namespace: str | None = None,
         usable[id(w)] = []
         for row, mid in enumerate(w.move_ids):
             why = implausible_samples(w.current[row], w.encoder[row])
-            travel = float(travels(w.encoder[row]))
+            travel = float(travels(w.encoder[row])) if why is None else math.nan
             if why is None and not 1.0 / TRAVEL_FACTOR <= travel / w.target_angle <= \
                     TRAVEL_FACTOR:  # a closed loop travels its target angle whatever the plant
                 why = (f'the move travels {travel:+.4g} deg for a target angle of '

@@ -77,16 +77,18 @@ def check_travel(encoder: NDArray[np.float64], target_angle: float) -> None:
     """Refuse a window whose moves do not travel their target angle.
 
     Raises:
-        InvalidDataError: The target angle is beyond :data:`MAX_ANGLE`; the moves travel
+        InvalidDataError: The target angle is 0 or beyond :data:`MAX_ANGLE`; the moves travel
             against it (its sign is wrong); or their median travel is more than
             :data:`TRAVEL_FACTOR` times off it (the encoder in radians or counts, or the
             current and encoder topics swapped): one line, saying which.
     """
+    if target_angle == 0:
+        raise InvalidDataError('target angle 0 deg: a move needs a non-zero target angle')
     if not abs(target_angle) <= MAX_ANGLE:
         raise InvalidDataError(f'target angle {target_angle:.6g} deg is beyond '
                                f'+-{MAX_ANGLE:g} deg: not a move of a galvano scanner')
     travel = float(np.median(travels(encoder)))
-    ratio = travel / target_angle if target_angle else float('nan')
+    ratio = travel / target_angle
     if ratio < -0.5:
         raise InvalidDataError(
             f'the moves travel {travel:+.4g} deg against their target angle '

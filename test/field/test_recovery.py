@@ -193,8 +193,11 @@ def test_recover_keeps_every_chunk_before_the_cut(tmp_path: Path,
             assert result.dropped_bytes == cut - good
 
 
-def test_recover_stops_at_a_damaged_chunk(tmp_path: Path,
-                                          monkeypatch: pytest.MonkeyPatch) -> None:
+def _damaged(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, *, finished: bool) -> tuple[
+        Path, Path, list[tuple[int, int, int]], bytes]:
+    """A copy of a 30-message bag (seed 5) with one flipped bit in its fifth chunk's data;
+    unless ``finished``, cut after its last chunk (no summary: an interrupted recording).
+    Returns the bag, its storage file, the chunks and the file's bytes."""
     original = _small_chunk_bag(tmp_path / 'whole', 30, 5, monkeypatch)
     chunks = _chunks(original)
     bag = tmp_path / 'damaged'
@@ -202,9 +205,16 @@ def test_recover_stops_at_a_damaged_chunk(tmp_path: Path,
     file = bag / original.name
     data = bytearray(file.read_bytes())
     start, end, _ = chunks[4]
-    data[(start + end) // 2] ^= 0xFF  # one flipped bit in the fifth chunk's data
-    data = data[: chunks[-1][1]]  # and no summary: an interrupted recording
+    data[(start + end) // 2] ^= 0xFF
+    if not finished:
+        data = data[: chunks[-1][1]]
     file.write_bytes(bytes(data))
+    return bag, file, chunks, bytes(data)
+
+
+def test_recover_stops_at_a_damaged_chunk(tmp_path: Path,
+                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    bag, _, chunks, _ = _damaged(tmp_path, monkeypatch, finished=False)
     result = recover(bag)
     assert result.messages == sum(n for _, _, n in chunks[:4])
     assert _assert_prefix(bag, 5) == result.messages
@@ -215,15 +225,7 @@ def test_a_finished_bag_damaged_inside_keeps_what_is_cut_beside_it(
     """A complete file (footer and all) with one chunk damaged: the recovery keeps the chunks
     before it in the bag and the rest, byte for byte, in ``<file>.cut`` (a second recovery
     does not overwrite it); no reader takes the ``.cut`` file for the bag's storage."""
-    original = _small_chunk_bag(tmp_path / 'whole', 30, 5, monkeypatch)
-    chunks = _chunks(original)
-    bag = tmp_path / 'damaged'
-    shutil.copytree(original.parent, bag)
-    file = bag / original.name
-    data = bytearray(file.read_bytes())
-    start, end, _ = chunks[4]
-    data[(start + end) // 2] ^= 0xFF
-    file.write_bytes(bytes(data))
+    bag, file, chunks, data = _damaged(tmp_path, monkeypatch, finished=True)
     result = recover(bag)
     assert result.messages == sum(n for _, _, n in chunks[:4])
     assert result.cut_to == file.with_name(file.name + '.cut')

@@ -111,6 +111,7 @@ def test_result_fields_and_serialisation(windows_1psi: list) -> None:
     (0.3 * 57.3, 'travels 0.01745 times the target angle'),   # an encoder in radians
     (0.3 / 57.3, 'travels 57.31 times the target angle'),
     (1e300, 'beyond +-90 deg'),
+    (0.0, 'target angle 0 deg: a move needs a non-zero target angle'),
 ])
 def test_a_target_angle_the_moves_do_not_travel_is_refused_in_words(
         windows_1psi: list, angle: float, words: str) -> None:
