@@ -2,7 +2,9 @@
 
 :func:`recover` (``galvo-sysid bag recover``) keeps what is on disk: for mcap, every chunk up
 to the first damaged byte (checked: length, decompression, checksum, records;
-:mod:`galvo_sysid.field.bags.mcap_scan`), cuts the rest and writes the summary and footer; for
+:mod:`galvo_sysid.field.bags.mcap_scan`), cuts the rest (kept beside the file, byte for byte,
+in ``<file>.cut``: a damaged chunk of a finished file may be followed by good ones) and writes
+the summary and footer; for
 sqlite3, what was committed (sqlite3 rolls the half-written batch back). Then it writes
 ``metadata.yaml`` from what the storage holds (what ``ros2 bag reindex`` does) and says what
 it kept and what it dropped. Telling such a bag apart is
