@@ -112,8 +112,9 @@ def format_result(result: DiscrepancyResult, *, source: str = '') -> str:
     for c in result.candidates:
         params = _params(c.parameters, t, c.effect) if c.parameters else '-'
         ok = _acceptable(c.local_excess, c.local_left, c.gap, explained)
+        left = f'{100 * c.local_left:5.3g} %' if math.isfinite(c.local_left) else '    -  '
         local = ('' if c.effect == 'none' else
-                 f'   where it acts {c.local_excess:8.3g} sd, left {100 * c.local_left:5.3g} %'
+                 f'   where it acts {c.local_excess:8.3g} sd, left {left}'
                  f' {"ok" if ok else "NO"}')
         lines.append(f'  {c.effect:<20} {c.score:>12.4g}   gap after {c.gap:7.3g}   '
                      f'white {c.whiteness:7.3g}{local}   {params}'

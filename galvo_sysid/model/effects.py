@@ -373,10 +373,13 @@ def parse_effect(text: str) -> Effect:
         try:
             if not sep:
                 raise ValueError(item)
-            params[key.strip()] = float(value)
+            number = float(value)
         except ValueError:
             msg = f'bad effect {text!r}: expected NAME:KEY=VALUE[,KEY=VALUE...]'
             raise ConfigurationError(msg) from None
+        if key.strip() in params:
+            raise ConfigurationError(f'bad effect {text!r}: {key.strip()} given twice')
+        params[key.strip()] = number
     if not name.strip():
         raise ConfigurationError(f'bad effect {text!r}: no effect name')
     return Effect.create(name.strip(), params)

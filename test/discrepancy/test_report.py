@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import math
+from dataclasses import replace
 
 from discrepancy_cases import CASES, analysed, hidden_effects
 
@@ -25,3 +27,10 @@ def test_report_files(tmp_path):
     assert 'found: coulomb_friction' in summary
     assert json.loads((tmp_path / 'rep' / 'result.json').read_text())['effect'] == \
         'coulomb_friction'
+    # a share left that is not a number (nothing to leave where it acts) is a dash, not 'inf %'
+    acting = next(c for c in result.candidates if c.effect != 'none')
+    odd = replace(result, candidates=tuple(replace(c, local_left=math.inf) if c is acting else c
+                                           for c in result.candidates))
+    text = format_result(odd, source='friction.mcap')
+    assert 'inf %' not in text
+    assert 'left     -   ' in text

@@ -162,3 +162,6 @@ def test_parse_effect_from_the_command_line() -> None:
                 'input_delay:delay=1'):
         with pytest.raises(ConfigurationError):
             parse_effect(bad)
+    # a key given twice was taken at its last value without a word
+    with pytest.raises(ConfigurationError, match='friction_current given twice'):
+        parse_effect('coulomb_friction:friction_current=0.01,friction_current=0.02')
