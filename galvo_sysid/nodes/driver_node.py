@@ -184,6 +184,9 @@ class DriverNode(Node):
         self.encoder = self.create_publisher(MoveSamples, ENCODER_TOPIC, qos)
         self.published = 0
         self._stop = threading.Event()
+        # held while a move is published: close() takes it after setting _stop, so no publish
+        # is in flight or starts once it returns (the node's publishers are then destroyed)
+        self._publishing = threading.Lock()
         self._thread = threading.Thread(target=self._run, name='galvo-driver', daemon=True)
         self._thread.start()
 
@@ -266,9 +269,12 @@ class DriverNode(Node):
                 if delay < -1.0:  # fell behind (e.g. a rate change): do not burst to catch up
                     wall0 -= delay
             self._publish(move, stamp=origin + move.stamp)
-        if not self._stop.is_set():
+        with self._publishing:
+            if self._stop.is_set():
+                return
             for pub in (self.current, self.encoder):
                 pub.wait_for_all_acked(Duration(seconds=10))
+        if not self._stop.is_set():
             self.log.info(f'schedule done after {self.published} moves')
             if self.params.values['exit_when_done']:
                 import os
@@ -277,17 +283,24 @@ class DriverNode(Node):
                 os.kill(os.getpid(), signal.SIGINT)
 
     def _publish(self, move: Move, *, stamp: float) -> None:
-        for pub, data in ((self.current, move.current), (self.encoder, move.encoder)):
-            msg = fill(MoveSamples(), move_samples_fields(
-                move_id=move.move_id, target_angle=move.target_angle,
-                sample_period=move.sample_period, data=data))
-            fill_header(msg, stamp=stamp)
-            pub.publish(msg)
-        self.published += 1
+        with self._publishing:
+            if self._stop.is_set():  # closed while the move was simulated
+                return
+            for pub, data in ((self.current, move.current), (self.encoder, move.encoder)):
+                msg = fill(MoveSamples(), move_samples_fields(
+                    move_id=move.move_id, target_angle=move.target_angle,
+                    sample_period=move.sample_period, data=data))
+                fill_header(msg, stamp=stamp)
+                pub.publish(msg)
+            self.published += 1
 
     def close(self) -> None:
-        """Stop publishing."""
+        """Stop publishing: when this returns no move is being published or will be, even if
+        the thread is still simulating one (a publish on the publishers the node's destruction
+        frees ended the process with SIGSEGV once in a CI run)."""  # noqa: D205, D209
         self._stop.set()
+        with self._publishing:
+            pass
         self._thread.join(timeout=5.0)
 
 
