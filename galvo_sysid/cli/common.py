@@ -38,6 +38,7 @@ __all__ = [
     'nonnegative_int',
     'parse_angle',
     'positive',
+    'positive_at_most',
     'print_json',
 ]
 
@@ -121,6 +122,15 @@ def bounded_int(low: int, high: int) -> Callable[[str], int]:
         return int(_number(text, int, 'a whole number', f'within {low}..{high}',
                            lambda value: low <= value <= high))
     parse.__name__ = 'int'
+    return parse
+
+
+def positive_at_most(high: float, unit: str) -> Callable[[str], float]:
+    """An argument type: a number above 0 and at most ``high`` [``unit``]."""
+    def parse(text: str) -> float:
+        return _number(text, float, 'a number', f'> 0 and <= {high:g} {unit}',
+                       lambda value: 0 < value <= high)
+    parse.__name__ = 'float'
     return parse
 
 

@@ -16,6 +16,7 @@ from galvo_sysid.cli.common import (
     dither_amplitude,
     parse_angle,
     positive,
+    positive_at_most,
     print_json,
 )
 from galvo_sysid.errors import ConfigurationError
@@ -61,21 +62,6 @@ def _relative(text: str) -> tuple[str, float]:
     return name, number
 
 
-def _noise(unit: str) -> Any:
-    """An argument type: an rms noise [unit], above 0 and at most 10 (a galvo's current
-    noise is milliamperes, its encoder's a few micro-degrees)."""  # noqa: D205, D209
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f'not a number: {text!r}') from None
-        if not 0 < value <= 10:
-            raise argparse.ArgumentTypeError(f'must be > 0 and <= 10 {unit}: {text!r}')
-        return value
-    parse.__name__ = 'float'
-    return parse
-
-
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``plan`` subcommand to an argparse subparsers object."""
     p = add_subcommand(
@@ -99,9 +85,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument('--target', action='append', type=_relative, default=[],
                    metavar='PARAM=REL', help='a relative std wanted, e.g. zeta_3=0.1: the '
                    'smallest dither (at --dither-modes) that reaches it; repeatable')
-    p.add_argument('--current-noise', type=_noise('A'), default=None, metavar='A',
-                   help="rms current noise [A] (default: the simulator's)")
-    p.add_argument('--encoder-noise', type=_noise('deg'), default=None, metavar='DEG',
+    p.add_argument('--current-noise', type=positive_at_most(10.0, 'A'), default=None,
+                   metavar='A', help="rms current noise [A] (default: the simulator's)")
+    p.add_argument('--encoder-noise', type=positive_at_most(10.0, 'deg'), default=None,
+                   metavar='DEG',
                    help="rms encoder noise before quantisation [deg] (default: the simulator's)")
     p.add_argument('--json', action='store_true', help='print one JSON object on stdout')
     return p

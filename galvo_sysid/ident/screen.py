@@ -171,15 +171,14 @@ def screen_moves(current: ArrayLike, encoder: ArrayLike, *, model: PlantModel,
     m = cur.shape[0]
     finite = np.all(np.isfinite(cur), axis=1) & np.all(np.isfinite(enc), axis=1)
     reasons = {int(i): 'move has NaN or Inf samples' for i in np.flatnonzero(~finite)}
-    with np.errstate(invalid='ignore'):
-        huge = finite & ((np.max(np.abs(cur), axis=1) > MAX_SAMPLE_MAGNITUDE)
-                         | (np.max(np.abs(enc), axis=1) > MAX_SAMPLE_MAGNITUDE))
+    huge = finite & ((np.max(np.abs(cur), axis=1) > MAX_SAMPLE_MAGNITUDE)
+                     | (np.max(np.abs(enc), axis=1) > MAX_SAMPLE_MAGNITUDE))
     reasons.update({int(i): f'move has samples beyond +-{MAX_SAMPLE_MAGNITUDE:g} (A or deg): '
                             f'no measurement of a scanner' for i in np.flatnonzero(huge)})
     good = np.flatnonzero(finite & ~huge)
     if not good.size:
-        raise InvalidDataError(f'no move of the window is usable: the first '
-                               f'{next(iter(reasons.values()))[5:]}')
+        first = next(iter(reasons.values())).removeprefix('move ')
+        raise InvalidDataError(f'no move of the window is usable: the first {first}')
     if limit > 0 and good.size >= _MIN_MOVES:
         # gross first: a move orders of magnitude larger than the others (a rescaled or
         # corrupted record) would swamp the window's mean the model-based test starts from
