@@ -105,6 +105,26 @@ def test_counts_are_the_storages_and_a_lie_is_said(tmp_path: Path) -> None:
     assert found.moves == 400
 
 
+def test_a_total_that_disagrees_with_the_topics_is_said(tmp_path: Path) -> None:
+    """Only the top-level message_count wrong: it was not said (the topics' counts were)."""
+    bag = tmp_path / 'total'
+    shutil.copytree(BAGS / 'nominal', bag)
+    meta = bag / 'metadata.yaml'
+    text = meta.read_text()
+    top = '\n  message_count: 800\n'  # the top level's (a file's is indented further)
+    assert text.count(top) == 1
+    meta.write_text(text.replace(top, '\n  message_count: 5000\n'))
+    with BagReader(bag) as reader:
+        info = reader.info
+    assert info.message_count == 800
+    assert info.claims == ('metadata.yaml claims 5000 messages in all, the storage holds 800 '
+                           '(shown)',)
+    proc = galvo('info', bag)
+    assert proc.returncode == 0, proc.stderr
+    assert 'messages: 800' in proc.stdout
+    assert 'note: metadata.yaml claims 5000 messages in all' in proc.stdout
+
+
 def test_the_commands_show_what_was_read(tmp_path: Path) -> None:
     bag = lying_copy(tmp_path)
     proc = galvo('identify', bag)

@@ -256,6 +256,11 @@ class BagReader(BagFile):
                     topics[name] = TopicInfo(t.topic, t.msgtype, counts.get(name, 0),
                                              t.transient_local)
         count = sum(t.count for t in topics.values())
+        meta = self._metadata
+        if meta is not None and meta.message_count != count:
+            held_by = 'the storage holds' if held is not None else 'its topics hold'
+            claims.append(f'metadata.yaml claims {meta.message_count} messages in all, '
+                          f'{held_by} {count} (shown)')
         return BagInfo(path=self.path, storage=_storage_of(self.path),
                        topics=tuple(topics[k] for k in sorted(topics)), message_count=count,
                        start=start if count else 0, end=end - 1 if count else 0,
