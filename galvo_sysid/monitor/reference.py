@@ -50,8 +50,9 @@ def monitor_from_parameters(values: Mapping[str, Any], *,
 
     The reference model (the file of ``model``, see :func:`reference_from_parameters`), the
     tolerances ``tolerances.<name>`` and ``tolerances.<kind>`` given (the rule of
-    :mod:`galvo_sysid.monitor.tolerances`; None means not given; names of modes the reference
-    lacks are ignored, as the node does not declare them), and the options of
+    :mod:`galvo_sysid.monitor.tolerances`; None means not given; a tolerance of a mode the
+    reference lacks is refused: it would judge nothing, and says that the parameters were
+    written for another scanner), and the options of
     :data:`~galvo_sysid.monitor.parameters.MONITOR_PARAMETERS`; other names are ignored and
     missing ones take the monitor's defaults (the node's).
 
@@ -62,7 +63,7 @@ def monitor_from_parameters(values: Mapping[str, Any], *,
 
     Raises:
         ConfigurationError: A value is not a number or out of range, an unknown tolerance
-            name, or a bad model file.
+            name, a tolerance of a mode the reference lacks, or a bad model file.
         InvalidDataError: The model file cannot be read.
     """
     reference = reference_from_parameters(values) if model is None else model
@@ -78,7 +79,11 @@ def monitor_from_parameters(values: Mapping[str, Any], *,
                 f'tolerances.<kind> (k, omega, zeta) or tolerances.<parameter> (k1, omega_2, '
                 f'zeta_3, ...)')
         if split is not None and split[1] > reference.n_modes:
-            continue  # a mode this reference has not
+            raise ConfigurationError(
+                f'{key} is given, but the reference model '
+                f'{model_label(values.get("model") or None)} has {reference.n_modes} mode(s): '
+                f"no mode {split[1]} to judge (remove the tolerance, or give this scanner's "
+                f'model file)')
         if isinstance(value, bool) or not isinstance(value, int | float | str):
             raise ConfigurationError(f'bad watchdog parameter {key}: not a number: {value!r}')
         try:

@@ -49,8 +49,11 @@ def test_monitor_from_parameters_is_the_watchdog_nodes(tmp_path) -> None:
         monitor_from_parameters({'tolerances.k0': -1.0})
     with pytest.raises(ConfigurationError, match='unknown'):
         monitor_from_parameters({'tolerances.kappa_1': 0.1})
-    # a mode the reference lacks: ignored (the node does not declare it either)
-    assert monitor_from_parameters({'tolerances.k9': 0.1}).tolerances == plain.tolerances
+    # a mode the reference lacks: refused in words (it was ignored without a word)
+    with pytest.raises(ConfigurationError, match=r'tolerances.k9 is given, but the reference '
+                       r'model .* has 3 mode\(s\): no mode 9 to judge'):
+        monitor_from_parameters({'tolerances.k9': 0.1})
+    assert monitor_from_parameters({'tolerances.k9': None}).tolerances == plain.tolerances
 
 
 def test_reference_from_parameters() -> None:

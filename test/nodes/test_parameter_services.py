@@ -26,6 +26,9 @@ from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 
+from galvo_sysid.model.files import save_model
+from galvo_sysid.sim.family import random_scanner
+
 if TYPE_CHECKING:
     from ros_graph import Graph
 
@@ -57,6 +60,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / 'model_format.yaml').write_text('format: galvo-scanner-model\n')
     (d / 'model_version.yaml').write_text('version: 7\n')
     (d / 'model_syntax.yaml').write_text('mechanics: [1, {a: 2}\n')
+    save_model(random_scanner(2).model, d / 'one_mode.yaml')  # a scanner of one mode
     return d
 
 
@@ -89,6 +93,9 @@ START_CASES = [
     ('sysid', ('-p', 'model:={d}/model_format.yaml'), "format 'galvo-scanner-model' is not"),
     ('galvo_driver', ('-p', 'model:={d}/model_version.yaml'), 'unsupported version 7'),
     ('watchdog', ('-p', 'model:={d}/model_syntax.yaml'), 'model_syntax.yaml'),
+    # a tolerance of a mode the model lacks (it was ignored without a word)
+    ('watchdog', ('-p', 'model:={d}/one_mode.yaml', '-p', 'tolerances.omega_3:=0.01'),
+     'has 1 mode(s): no mode 3 to judge'),
 ]
 
 
