@@ -130,6 +130,11 @@ class Physics:
         if any(w <= 0 for w in self.natural_frequencies) or any(
                 z <= 0 for z in self.damping_ratios):
             raise ConfigurationError('natural frequencies and damping ratios must be positive')
+        for i, z in enumerate(self.damping_ratios, start=1):
+            if z > 1.0:  # as a model file's damping_ratio
+                raise ConfigurationError(
+                    f'damping ratios must be at most 1, got zeta_{i} = {z:.4g} (an overdamped '
+                    f'mode is two real poles, not a resonance; a model file refuses it too)')
         for name, low, strict in (('dead_time', 0.0, False), ('lag_time_constant', 0.0, False),
                                   ('pivot_frequency', 0.0, False), ('gain_ratio', 0.0, True),
                                   ('friction_current', 0.0, False),

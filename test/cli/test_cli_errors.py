@@ -124,6 +124,17 @@ def test_simulate_a_record_longer_than_a_model_may_declare_is_refused_at_once(
     assert not (tmp_path / 'long').exists()
 
 
+@pytest.mark.parametrize('change', [['--step', 'zeta_1=1000@1'],
+                                    ['--drift', 'zeta_1=10/move']])
+def test_simulate_refuses_a_change_that_overdamps_a_mode(tmp_path: Path,
+                                                         change: list[str]) -> None:
+    """`--step zeta_1=1000@1` simulated a damping ratio of 6.2 (two real poles, no resonance)
+    that a model file would refuse; a drift crossing 1 the same."""
+    proc = run('simulate', '--out', tmp_path / 'over', '--moves-per-angle', '20', *change)
+    assert_error_line(proc, 'simulate', 'damping ratios must be at most 1, got zeta_1 = ')
+    assert not (tmp_path / 'over').exists()
+
+
 def test_simulate_absurd_effect_parameter(tmp_path: Path) -> None:
     proc = run('simulate', '--out', tmp_path / 's2', '--effect', 'input_delay:delay=1',
                '--moves-per-angle', '4')
