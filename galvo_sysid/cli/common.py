@@ -13,6 +13,7 @@ import argparse
 import json
 import math
 import os
+import re
 import sys
 import time
 import warnings
@@ -29,6 +30,7 @@ __all__ = [
     'BAG_HELP',
     'PSI',
     'HelpFormatter',
+    'Parser',
     'Progress',
     'add_subcommand',
     'bounded_int',
@@ -47,6 +49,23 @@ PSI = 0.3
 
 BAG_HELP = 'rosbag2 bag: directory, .mcap or .db3 file'
 """Help text of a subcommand's bag argument."""
+
+
+_NEGATIVE_NUMBER = re.compile(r'^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$')
+"""A negative number as a command line writes it, scientific notation included."""
+
+
+class Parser(argparse.ArgumentParser):
+    """An argument parser that takes a negative number in scientific notation as a value.
+
+    argparse's own pattern knows ``-1`` and ``-0.5`` but not ``-1e-6``, which it read as an
+    unknown option (``--measured-current -1e-6``: "expected one argument"). Its
+    sub-parsers are of this class too.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = _NEGATIVE_NUMBER
 
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):

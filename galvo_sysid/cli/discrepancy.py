@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 from galvo_sysid import keep_freed_memory, limit_blas_threads
 from galvo_sysid.cli.common import (
     HelpFormatter,
+    Parser,
     check_output,
     finite_float,
     guarded,
@@ -201,7 +202,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD, DEFAULT_TOLERANCE
     from galvo_sysid.model.effects import CANDIDATE_NAMES
 
-    parser = argparse.ArgumentParser(prog='galvo-sysid discrepancy', description=_description(),
+    parser = Parser(prog='galvo-sysid discrepancy', description=_description(),
                                      epilog=_EPILOG, formatter_class=HelpFormatter)
     _arguments(parser, DEFAULT_THRESHOLD, CANDIDATE_NAMES, DEFAULT_TOLERANCE)
     args = parser.parse_args(argv)

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING
 
 from galvo_sysid import keep_freed_memory, limit_blas_threads
 from galvo_sysid.cli import bag, echo, identify, info, param, record, replay, simulate, topic
-from galvo_sysid.cli.common import guarded
+from galvo_sysid.cli.common import Parser, guarded
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -103,7 +103,7 @@ exit codes: 0 ok, 1 bad input or nothing identified, 2 usage error, 130 interrup
 def build_parser(*, plugins: bool = True) -> argparse.ArgumentParser:
     """The argument parser with every subcommand (and, if ``plugins``, those of
     :data:`PLUGINS` found installed)."""  # noqa: D205, D209
-    parser = argparse.ArgumentParser(prog=PROG, description=_MAIN_HELP, epilog=_MAIN_EPILOG,
+    parser = Parser(prog=PROG, description=_MAIN_HELP, epilog=_MAIN_EPILOG,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     from galvo_sysid import __version__
 

@@ -11,6 +11,7 @@ import pytest
 
 from galvo_sysid.cli.common import (
     HelpFormatter,
+    Parser,
     Progress,
     add_subcommand,
     check_output,
@@ -72,6 +73,19 @@ def test_number_argument_types_say_what_is_wrong() -> None:
     for parse, text, message in cases:
         with pytest.raises(argparse.ArgumentTypeError, match=message):
             parse(text)
+
+
+@pytest.mark.parametrize('text', ['-1e-6', '-2.5E+3', '-.5e-3', '-1', '-0.25'])
+def test_a_negative_number_is_a_value_in_scientific_notation_too(text: str) -> None:
+    """`--measured-current -1e-6` was read as an unknown option ("expected one argument")."""
+    parser = Parser(prog='p')
+    sub = parser.add_subparsers(dest='command', required=True)
+    child = sub.add_parser('identify')
+    child.add_argument('--lag', type=float)
+    assert isinstance(child, Parser)
+    assert parser.parse_args(['identify', '--lag', text]).lag == float(text)
+    with pytest.raises(SystemExit):  # an option is still an option
+        parser.parse_args(['identify', '--lag', '-x'])
 
 
 def test_help_shows_only_defaults_that_say_something() -> None:
