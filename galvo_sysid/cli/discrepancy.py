@@ -203,7 +203,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from galvo_sysid.model.effects import CANDIDATE_NAMES
 
     parser = Parser(prog='galvo-sysid discrepancy', description=_description(),
-                                     epilog=_EPILOG, formatter_class=HelpFormatter)
+                    epilog=_EPILOG, formatter_class=HelpFormatter)
     _arguments(parser, DEFAULT_THRESHOLD, CANDIDATE_NAMES, DEFAULT_TOLERANCE)
     args = parser.parse_args(argv)
     return guarded('galvo-sysid discrepancy', lambda: run(args))

@@ -104,7 +104,7 @@ def build_parser(*, plugins: bool = True) -> argparse.ArgumentParser:
     """The argument parser with every subcommand (and, if ``plugins``, those of
     :data:`PLUGINS` found installed)."""  # noqa: D205, D209
     parser = Parser(prog=PROG, description=_MAIN_HELP, epilog=_MAIN_EPILOG,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+                    formatter_class=argparse.RawDescriptionHelpFormatter)
     from galvo_sysid import __version__
 
     parser.add_argument('--version', action='version', version=f'%(prog)s {__version__}')
