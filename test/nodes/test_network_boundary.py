@@ -45,7 +45,8 @@ while time.monotonic() < end and not seen:
     seen = any(n == 'galvo_driver' for n, _ in node.get_node_names_and_namespaces())
 answer = None
 client = node.create_client(GetParameters, '/galvo_driver/get_parameters')
-if client.wait_for_service(timeout_sec=2.0 if seen else 0.5):
+# a node seen may offer its services a little later on a busy machine: the rest of the time
+if client.wait_for_service(timeout_sec=max(2.0, end - time.monotonic()) if seen else 0.5):
     future = client.call_async(GetParameters.Request(names=['seed']))
     rclpy.spin_until_future_complete(node, future, timeout_sec=5.0)
     if future.result() is not None:
