@@ -42,7 +42,7 @@ import yaml  # type: ignore[import-untyped]  # PyYAML ships no stubs here
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model.dynamics import MAX_COMPUTATION_DELAY, InputDynamics
 from galvo_sysid.model.effects import MAX_EFFECTS, effects_from_list
-from galvo_sysid.model.modal import MAX_MAGNITUDE, ModalModel
+from galvo_sysid.model.modal import MAX_DAMPING_RATIO, MAX_MAGNITUDE, ModalModel
 from galvo_sysid.model.plant import MAX_MODES, MAX_RECORD_LENGTH, PlantModel
 from galvo_sysid.schema import Section, check_number, load_yaml, parse_yaml
 
@@ -158,7 +158,8 @@ def model_from_dict(data: Any, *, source: str = 'model') -> PlantModel:
     for i, raw in enumerate(mech.items('modes', max_items=MAX_MODES), start=1):
         mode = Section(raw, f'{mech.where}: modes[{i}]', keys=mode_keys)
         freqs.append(mode.number('natural_frequency', low=0.0, high=1e8, low_open=True))
-        damps.append(mode.number('damping_ratio', low=0.0, high=1.0, low_open=True))
+        damps.append(mode.number('damping_ratio', low=0.0, high=MAX_DAMPING_RATIO,
+                                 low_open=True))
         residues.append(mode.number('residue', low=-MAX_MAGNITUDE, high=MAX_MAGNITUDE))
         if 'band' in mode:
             bands.append(_band(mode.data['band'], f'{mode.where}: band'))

@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
+    'MAX_DAMPING_RATIO',
     'MAX_MAGNITUDE',
     'Band',
     'ModalModel',
@@ -39,6 +40,10 @@ Band = tuple[float, float]
 MAX_MAGNITUDE = 1e15
 """Largest magnitude of any modal parameter (gains of real scanners are below 1e9 deg/(A s^2)
 and frequencies below 1e7 rad/s); beyond it a value is a typo or an attack."""
+
+MAX_DAMPING_RATIO = 1.0
+"""Largest damping ratio of a mode a model file or a simulated plant may have (above it a mode
+is two real poles, not a resonance)."""
 
 
 def parameter_names(n_modes: int) -> tuple[str, ...]:

@@ -37,7 +37,7 @@ import numpy as np
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model.dynamics import check_sample_period
-from galvo_sysid.model.modal import MAX_MAGNITUDE, parameter_names
+from galvo_sysid.model.modal import MAX_DAMPING_RATIO, MAX_MAGNITUDE, parameter_names
 from galvo_sysid.model.terms import term_current, term_reading, term_reading_slope
 
 if TYPE_CHECKING:
@@ -131,10 +131,11 @@ class Physics:
                 z <= 0 for z in self.damping_ratios):
             raise ConfigurationError('natural frequencies and damping ratios must be positive')
         for i, z in enumerate(self.damping_ratios, start=1):
-            if z > 1.0:  # as a model file's damping_ratio
+            if z > MAX_DAMPING_RATIO:  # as a model file's damping_ratio
                 raise ConfigurationError(
-                    f'damping ratios must be at most 1, got zeta_{i} = {z:.4g} (an overdamped '
-                    f'mode is two real poles, not a resonance; a model file refuses it too)')
+                    f'damping ratios must be at most {MAX_DAMPING_RATIO:g}, got zeta_{i} = '
+                    f'{z:.4g} (an overdamped mode is two real poles, not a resonance; a model '
+                    f'file refuses it too)')
         for name, low, strict in (('dead_time', 0.0, False), ('lag_time_constant', 0.0, False),
                                   ('pivot_frequency', 0.0, False), ('gain_ratio', 0.0, True),
                                   ('friction_current', 0.0, False),
