@@ -18,8 +18,8 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / 'galvo_sysid'
 
 LAYERS = {
-    'errors': 0, 'jsonsafe': 0, 'schema': 1, 'model': 2, 'ident': 3, 'sim': 3, 'monitor': 4,
-    'interfaces': 5, 'field': 6, 'discrepancy': 7, 'cli': 8, 'nodes': 8,
+    'errors': 0, 'jsonsafe': 0, 'filters': 1, 'schema': 1, 'model': 2, 'ident': 3, 'sim': 3,
+    'monitor': 4, 'interfaces': 5, 'field': 6, 'discrepancy': 7, 'cli': 8, 'nodes': 8,
 }
 """Rank of each subpackage (and top-level module); equal ranks do not import each other."""
 
@@ -144,7 +144,9 @@ def test_names_are_imported_from_their_module() -> None:
                 module = REPO.joinpath(*node.module.split('.')).with_suffix('.py')
                 if not module.is_file():  # a subpackage: its __init__ is its public API
                     continue
-                names = defined.setdefault(module, _defined(module))
+                if module not in defined:  # parsed once (setdefault would parse each time)
+                    defined[module] = _defined(module)
+                names = defined[module]
                 bad.extend(f'{path.relative_to(REPO)}:{node.lineno}: {a.name} from '
                            f'{node.module}' for a in node.names if a.name not in names)
     assert not bad, 'not imported from the module defining it: ' + '; '.join(bad)

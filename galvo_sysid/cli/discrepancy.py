@@ -91,7 +91,7 @@ def _description() -> str:
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``discrepancy`` subcommand to an argparse subparsers object."""
-    from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD, DEFAULT_TOLERANCE
+    from galvo_sysid.discrepancy.settings import DEFAULT_THRESHOLD, DEFAULT_TOLERANCE
     from galvo_sysid.model.effects import CANDIDATE_NAMES
 
     p: argparse.ArgumentParser = subparsers.add_parser(
@@ -199,7 +199,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run ``discrepancy`` alone (``python -m galvo_sysid.cli.discrepancy``)."""
     limit_blas_threads()  # before numpy is imported
     keep_freed_memory()
-    from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD, DEFAULT_TOLERANCE
+    from galvo_sysid.discrepancy.settings import DEFAULT_THRESHOLD, DEFAULT_TOLERANCE
     from galvo_sysid.model.effects import CANDIDATE_NAMES
 
     parser = Parser(prog='galvo-sysid discrepancy', description=_description(),

@@ -65,7 +65,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         description=_DESCRIPTION, epilog=_EPILOG)
     p.add_argument('bag', help=BAG_HELP)
     p.add_argument('--json', action='store_true', help='print one JSON object on stdout')
-    # The choices and defaults below are galvo_sysid.ident.identify.METHODS,
+    # The choices and defaults below are galvo_sysid.ident.methods.METHODS,
     # galvo_sysid.field.pooling.POOLINGS and defaults('sysid') of galvo_sysid.monitor.parameters
     # written out (test/cli/test_cli.py checks them): importing those modules here would load
     # numpy and scipy for every subcommand's parser (half a second of start-up for `info`).

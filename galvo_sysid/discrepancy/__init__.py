@@ -7,23 +7,26 @@ of :mod:`.spectra`), fits and scores every candidate effect (:mod:`.candidates`)
 the model disagrees by frequency, phase of the move and move size (:mod:`.localise`), adds
 the best effects in turn (:mod:`.workflow`), proposes a few dictionary terms for a gap no
 effect explains (:mod:`.fallback`) and writes the figures and text
-(:mod:`.report`). The names below are the public API; the modules' underscored names are
-private to the subpackage.
+(:mod:`.report`); its defaults are in :mod:`.settings`. The names below are the public
+API, loaded when first used (the command line's help reads :mod:`.settings` without the
+numerics); the modules' underscored names are private to the subpackage.
 """
 
-from galvo_sysid.discrepancy.candidates import CandidateFit
-from galvo_sysid.discrepancy.compare import Comparison, Diagnostics
-from galvo_sysid.discrepancy.fallback import Proposal, ProposedTerm, propose
-from galvo_sysid.discrepancy.localise import Band, Localisation, localise
-from galvo_sysid.discrepancy.moves import MoveSet, read_moves
-from galvo_sysid.discrepancy.plant import PlantSimulator
-from galvo_sysid.discrepancy.report import format_result, write_report
-from galvo_sysid.discrepancy.workflow import (
-    DEFAULT_THRESHOLD,
-    DiscrepancyResult,
-    Step,
-    find_discrepancy,
-)
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from galvo_sysid.discrepancy.candidates import CandidateFit
+    from galvo_sysid.discrepancy.compare import Comparison, Diagnostics
+    from galvo_sysid.discrepancy.fallback import Proposal, ProposedTerm, propose
+    from galvo_sysid.discrepancy.localise import Band, Localisation, localise
+    from galvo_sysid.discrepancy.moves import MoveSet, read_moves
+    from galvo_sysid.discrepancy.plant import PlantSimulator
+    from galvo_sysid.discrepancy.report import format_result, write_report
+    from galvo_sysid.discrepancy.settings import DEFAULT_THRESHOLD
+    from galvo_sysid.discrepancy.workflow import DiscrepancyResult, Step, find_discrepancy
 
 __all__ = [
     'DEFAULT_THRESHOLD',
@@ -45,3 +48,34 @@ __all__ = [
     'read_moves',
     'write_report',
 ]
+
+_WHERE = {
+    'DEFAULT_THRESHOLD': 'settings',
+    'Band': 'localise',
+    'CandidateFit': 'candidates',
+    'Comparison': 'compare',
+    'Diagnostics': 'compare',
+    'DiscrepancyResult': 'workflow',
+    'Localisation': 'localise',
+    'MoveSet': 'moves',
+    'PlantSimulator': 'plant',
+    'Proposal': 'fallback',
+    'ProposedTerm': 'fallback',
+    'Step': 'workflow',
+    'find_discrepancy': 'workflow',
+    'format_result': 'report',
+    'localise': 'localise',
+    'propose': 'fallback',
+    'read_moves': 'moves',
+    'write_report': 'report',
+}
+
+
+def __getattr__(name: str) -> Any:
+    """Load a name of :data:`__all__` from its module when first used."""
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    value = getattr(importlib.import_module(f'{__name__}.{module}'), name)
+    globals()[name] = value
+    return value

@@ -8,11 +8,11 @@ the model, the effects added so far are refitted together, and the search repeat
 gap stays above the noise, so several effects are found in turn. Where the model disagrees
 before and after is :func:`~galvo_sysid.discrepancy.localise.localise`.
 
-Every run ends in a verdict (:data:`VERDICTS`): ``named`` when the effects added leave at
-most ``tolerance`` noise gaps; ``unexplained`` when a significant gap (above the noise gap)
-remains that no library effect explains, with where it sits and how large it is
-(:class:`Remaining`); ``consistent`` when the given model explains the moves within the
-noise. A significant gap is never answered with ``none``.
+Every run ends in a verdict (:data:`~galvo_sysid.discrepancy.settings.VERDICTS`): ``named``
+when the effects added leave at most ``tolerance`` noise gaps; ``unexplained`` when a
+significant gap (above the noise gap) remains that no library effect explains, with where
+it sits and how large it is (:class:`Remaining`); ``consistent`` when the given model
+explains the moves within the noise. A significant gap is never answered with ``none``.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from galvo_sysid.discrepancy.candidates import CandidateFit, _acceptable, _Fitte
 from galvo_sysid.discrepancy.compare import Comparison, Diagnostics
 from galvo_sysid.discrepancy.fallback import Proposal, propose
 from galvo_sysid.discrepancy.localise import Localisation, localise
+from galvo_sysid.discrepancy.settings import DEFAULT_THRESHOLD, DEFAULT_TOLERANCE
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.jsonsafe import finite_or_none
 from galvo_sysid.model.effects import CANDIDATE_NAMES
@@ -38,26 +39,11 @@ if TYPE_CHECKING:
     from galvo_sysid.discrepancy.moves import MoveSet
 
 __all__ = [
-    'DEFAULT_THRESHOLD',
-    'DEFAULT_TOLERANCE',
-    'VERDICTS',
     'DiscrepancyResult',
     'Remaining',
     'Step',
     'find_discrepancy',
 ]
-
-DEFAULT_THRESHOLD = 10.0
-"""Score (BIC drop) a candidate needs to be accepted."""
-
-DEFAULT_TOLERANCE = 2.0
-"""After effects were named, the remaining gap up to this many noise gaps still counts as
-explained (a model of an effect is rarely exact: Coulomb friction's stick-slip leaves up to
-about 1.5 noise gaps); above it the verdict is ``unexplained``."""
-
-VERDICTS = ('named', 'unexplained', 'consistent')
-"""How every run ends: effects named that explain the gap; a significant gap that no
-library effect explains; or a model that explains the moves within the noise."""
 
 
 @dataclass(frozen=True)
@@ -163,10 +149,11 @@ class DiscrepancyResult:
     """What :func:`find_discrepancy` found.
 
     Attributes:
-        verdict: One of :data:`VERDICTS`: ``named`` (the effects added explain the gap, up
-            to ``tolerance`` noise gaps), ``unexplained`` (the remaining gap is significant
-            and no library effect explains it; any effects added explain only part of it)
-            or ``consistent`` (the given model explains the moves within the noise).
+        verdict: One of :data:`~galvo_sysid.discrepancy.settings.VERDICTS`: ``named`` (the
+            effects added explain the gap, up to ``tolerance`` noise gaps), ``unexplained``
+            (the remaining gap is significant and no library effect explains it; any
+            effects added explain only part of it) or ``consistent`` (the given model
+            explains the moves within the noise).
         effect: The first (most significant) effect added; ``none`` when the model is
             consistent with the moves, ``unexplained`` when no effect was added to a
             significant gap.

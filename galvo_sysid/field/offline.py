@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import collections
 import functools
+import importlib
 from collections.abc import Mapping
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
@@ -59,7 +60,7 @@ from galvo_sysid.field.results import (
     WindowResult,
     rejection_to_dict,
 )
-from galvo_sysid.ident.identify import METHODS
+from galvo_sysid.ident.methods import METHODS
 from galvo_sysid.model import model_label
 from galvo_sysid.monitor.parameters import WINDOWER_PARAMETERS, defaults
 
@@ -103,7 +104,7 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
 
     Args:
         bag: The bag (directory, ``.mcap`` or ``.db3``).
-        method: One of :data:`~galvo_sysid.ident.identify.METHODS`; default: the sysid
+        method: One of :data:`~galvo_sysid.ident.methods.METHODS`; default: the sysid
             node's parameter ``method`` (``'refined'``).
         window_size: Moves per window; default: the sysid node's ``window_size`` (100).
         min_partial: Smallest unfinished window identified at the end; default half a window.
@@ -244,7 +245,9 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
                 not spectra or spectra[0][0].shape[1] == window.current.shape[1]):
             spectra.append((window.current, window.encoder))
 
-    # the children are forked: they inherit the imported numerics (no ROS in this process)
+    # the children are forked: they inherit the imported numerics (no ROS in this process),
+    # the fits' imported here, once, not in each child
+    importlib.import_module('galvo_sysid.ident.identify')
     with WindowScheduler(fit, processes=int(jobs) if int(jobs) > 1 else 0,
                          queue_size=int(jobs), when_full='wait', ordered=True,
                          start_method='fork', warm_up=False) as scheduler:

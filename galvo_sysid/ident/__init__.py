@@ -1,14 +1,25 @@
 """Identification numerics, no I/O.
 
-Filters, ARX, delay, preprocessing, modal decomposition, the paper pipeline (``paper``), the
-refined fit (``refine/``), the entry points (``identify``), pooling (``pool``), what they
-return (``result``) and commissioning (``commission``). The public API:
+ARX, delay, preprocessing, modal decomposition, the paper pipeline (``paper``), the refined
+fit (``refine/``), the method names (``methods``), the entry points (``identify``), pooling
+(``pool``), what they return (``result``) and commissioning (``commission``).
+
+The names below are loaded when first used, so that importing one light module (say
+:mod:`~galvo_sysid.ident.methods`, which the node parameters read in every process) does not
+import the fits and :mod:`scipy.optimize` with them. The public API:
 """
 
-from galvo_sysid.ident.commission import Commissioning, commission
-from galvo_sysid.ident.identify import METHODS, identify_joint, identify_window
-from galvo_sysid.ident.pool import pool_results
-from galvo_sysid.ident.result import IdentificationResult
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from galvo_sysid.ident.commission import Commissioning, commission
+    from galvo_sysid.ident.identify import identify_joint, identify_window
+    from galvo_sysid.ident.methods import METHODS
+    from galvo_sysid.ident.pool import pool_results
+    from galvo_sysid.ident.result import IdentificationResult
 
 __all__ = [
     'METHODS',
@@ -19,3 +30,19 @@ __all__ = [
     'identify_window',
     'pool_results',
 ]
+
+_WHERE = {
+    'METHODS': 'methods', 'Commissioning': 'commission', 'IdentificationResult': 'result',
+    'commission': 'commission', 'identify_joint': 'identify', 'identify_window': 'identify',
+    'pool_results': 'pool',
+}
+
+
+def __getattr__(name: str) -> Any:
+    """Load a name of :data:`__all__` from its module when first used."""
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    value = getattr(importlib.import_module(f'{__name__}.{module}'), name)
+    globals()[name] = value
+    return value

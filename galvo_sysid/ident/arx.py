@@ -21,7 +21,7 @@ import numpy as np
 import scipy.linalg
 
 from galvo_sysid.errors import ConfigurationError, IdentificationError, InvalidDataError
-from galvo_sysid.ident.filters import fir, lfilter
+from galvo_sysid.filters import fir, lfilter
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray

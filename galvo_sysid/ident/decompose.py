@@ -38,8 +38,8 @@ import numpy as np
 import scipy.linalg
 
 from galvo_sysid.errors import ConfigurationError, IdentificationError
+from galvo_sysid.filters import lfilter
 from galvo_sysid.ident.arx import ArxModel
-from galvo_sysid.ident.filters import lfilter
 from galvo_sysid.model import REFERENCE_MODEL, InputDynamics, ModalModel
 from galvo_sysid.model.modal import Band, default_bands
 

@@ -32,8 +32,8 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from galvo_sysid.errors import ConfigurationError, IdentificationError, InvalidDataError
+from galvo_sysid.filters import bilinear, lfilter
 from galvo_sysid.ident.arx import fit_arx
-from galvo_sysid.ident.filters import bilinear, lfilter
 from galvo_sysid.model import REFERENCE_MODEL, ModalModel
 
 if TYPE_CHECKING:

@@ -42,6 +42,7 @@ from galvo_sysid.errors import (
     InvalidDataError,
     ModelMismatchError,
 )
+from galvo_sysid.ident.methods import METHODS
 from galvo_sysid.ident.paper import paper_pipeline
 from galvo_sysid.ident.pool import pool_results
 from galvo_sysid.ident.preprocess import (
@@ -66,10 +67,7 @@ if TYPE_CHECKING:
     from galvo_sysid.ident.refine import RefinedFit
     from galvo_sysid.ident.refine.whitener import NoiseModel
 
-__all__ = ['METHODS', 'check_model_period', 'identify_joint', 'identify_window']
-
-METHODS = ('refined', 'paper-A', 'paper-B')
-"""Methods :func:`identify_window` accepts."""
+__all__ = ['check_model_period', 'identify_joint', 'identify_window']
 
 _JACKKNIFE_GROUPS = 10
 

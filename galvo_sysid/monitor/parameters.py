@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from galvo_sysid.errors import ConfigurationError
-from galvo_sysid.ident.identify import METHODS
+from galvo_sysid.ident.methods import METHODS
 from galvo_sysid.model import PAPER_ANGLES
 from galvo_sysid.monitor.tolerances import KINDS, builtin_tolerance, parameter_kind
 

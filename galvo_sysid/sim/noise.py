@@ -25,9 +25,9 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.signal import lfilter
 
 from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.filters import lfilter
 from galvo_sysid.model.sampling import sample_plant
 
 if TYPE_CHECKING:

@@ -84,9 +84,9 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.signal import lfilter
 
 from galvo_sysid.errors import ConfigurationError
+from galvo_sysid.filters import lfilter
 from galvo_sysid.model.changes import Drift, StepChange, plant_at
 from galvo_sysid.model.dynamics import DiscreteStateSpace
 from galvo_sysid.model.paper import PAPER_ANGLES
@@ -373,9 +373,9 @@ class GalvoSimulator:
         s = self._state
         ai, av = self._a_i, self._a_v
         n = lfilter([math.sqrt(1 - ai * ai) * cfg.current_noise_std], [1.0, -ai],
-                    white[:, 0].ravel(), zi=[ai * s.current_noise])[0].reshape(count, length)
+                    white[:, 0].ravel(), zi=[ai * s.current_noise]).reshape(count, length)
         v = lfilter([math.sqrt(1 - av * av) * cfg.measurement_noise_std], [1.0, -av],
-                    white[:, 1].ravel(), zi=[av * s.measurement_noise])[0].reshape(count, length)
+                    white[:, 1].ravel(), zi=[av * s.measurement_noise]).reshape(count, length)
         return n, v, uni * cfg.encoder_resolution, rng_states
 
     def _pack(self, loop: ClosedLoop) -> NDArray[np.float64]:

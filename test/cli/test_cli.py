@@ -344,7 +344,7 @@ def test_identify_and_commission_options_are_the_sysid_node_s() -> None:
 
     from galvo_sysid.cli.main import build_parser
     from galvo_sysid.field.pooling import POOLINGS
-    from galvo_sysid.ident.identify import METHODS
+    from galvo_sysid.ident.methods import METHODS
     from galvo_sysid.monitor.parameters import defaults
 
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))

@@ -20,7 +20,7 @@ from heldout import Hidden, heldout_moves
 from galvo_sysid.discrepancy import Comparison, DiscrepancyResult, MoveSet, find_discrepancy
 from galvo_sysid.discrepancy.fallback import propose
 from galvo_sysid.discrepancy.report import format_result
-from galvo_sysid.discrepancy.workflow import DEFAULT_THRESHOLD
+from galvo_sysid.discrepancy.settings import DEFAULT_THRESHOLD
 from galvo_sysid.model import PAPER_MODEL
 from galvo_sysid.model.files import load_model
 

@@ -11,7 +11,7 @@ import pytest
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.field.parameter_file import load_node_parameters
-from galvo_sysid.ident.identify import METHODS
+from galvo_sysid.ident.methods import METHODS
 from galvo_sysid.monitor.drift import DriftMonitor
 from galvo_sysid.monitor.pairing import MoveWindower
 from galvo_sysid.monitor.parameters import (

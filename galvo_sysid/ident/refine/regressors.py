@@ -16,7 +16,7 @@ import numpy as np
 from scipy import fft as sp_fft
 
 from galvo_sysid.errors import ConfigurationError, InvalidDataError
-from galvo_sysid.ident.filters import fir
+from galvo_sysid.filters import fir
 from galvo_sysid.model.dynamics import split_delay
 
 if TYPE_CHECKING:

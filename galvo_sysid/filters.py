@@ -1,16 +1,20 @@
-"""Digital filtering for the identification path without :mod:`scipy.signal`.
+"""Digital filtering without :mod:`scipy.signal`, for every part of the package.
 
-Importing :mod:`scipy.signal` takes about 0.3 s (it pulls in :mod:`scipy.stats`), a large part
-of ``galvo-sysid identify``'s process start, for the two functions the paper pipeline needs:
+Importing :mod:`scipy.signal` takes 0.3-1.7 s (it pulls in :mod:`scipy.stats` and
+:mod:`scipy.optimize`), the larger part of a process start (``galvo-sysid identify``, the
+driver node, ``galvo-sysid simulate``), for the two functions the package needs:
 
-- :func:`lfilter`: ``y = B(q^-1) / A(q^-1) x`` from rest along an axis, as
-  ``scipy.signal.lfilter(b, a, x, axis)`` (no initial state): the FIR part by shifted sums,
+- :func:`lfilter`: ``y = B(q^-1) / A(q^-1) x`` along an axis, from rest or from an initial
+  state, as ``scipy.signal.lfilter(b, a, x, axis, zi)``: the FIR part by shifted sums,
   the recursive part as the banded lower-triangular Toeplitz system ``A y = B x`` solved by
   LAPACK's ``dtbtrs`` (forward substitution, every record at once);
 - :func:`bilinear`: the bilinear (Tustin) transform of a continuous transfer function, as
   ``scipy.signal.bilinear``.
 
-Both agree with :mod:`scipy.signal` to rounding.
+Both agree with :mod:`scipy.signal` to rounding; the first-order filters of the simulator's
+noise and of the discrepancy plant's amplifier lag to the bit (``test/test_filters.py``).
+A top-level module (below ``model``): the simulator and the identification, on one layer,
+both use it.
 """
 
 from __future__ import annotations
@@ -56,31 +60,45 @@ def fir(b: ArrayLike, x: ArrayLike, *, axis: int = -1) -> NDArray[np.float64]:
     return out
 
 
-def lfilter(b: ArrayLike, a: ArrayLike, x: ArrayLike, *, axis: int = -1) -> NDArray[np.float64]:
-    """Filter ``x`` by ``B(q^-1) / A(q^-1)`` along ``axis``, from rest.
+def lfilter(b: ArrayLike, a: ArrayLike, x: ArrayLike, *, axis: int = -1,
+            zi: ArrayLike | None = None) -> NDArray[np.float64]:
+    """Filter ``x`` by ``B(q^-1) / A(q^-1)`` along ``axis``, from rest or from a state.
 
     Args:
         b: Numerator coefficients in powers of q^-1.
         a: Denominator coefficients in powers of q^-1, ``a[0] != 0``.
         x: Data; filtered along ``axis``.
         axis: The time axis.
+        zi: The filter's initial state as ``scipy.signal.lfilter``'s (transposed direct
+            form II, of the filter normalised to ``a[0] == 1``), ``max(len(a), len(b)) - 1``
+            values, the same for every record; None: from rest. It adds ``zi[k]`` to the
+            right side of ``A y = B x`` at sample ``k``.
 
     Returns:
-        The filtered data, same shape as ``x`` (``scipy.signal.lfilter(b, a, x, axis=axis)``
-        to rounding).
+        The filtered data, same shape as ``x`` (``scipy.signal.lfilter(b, a, x, axis=axis,
+        zi=zi)[0]`` to rounding; only the output, not the final state).
 
     Raises:
-        ConfigurationError: Empty or multi-dimensional coefficients, or ``a[0] == 0``.
+        ConfigurationError: Empty or multi-dimensional coefficients, ``a[0] == 0`` or a
+            state of the wrong length.
     """
     b_arr = _coefficients(b, 'b')
     a_arr = _coefficients(a, 'a')
     if a_arr[0] == 0:
         raise ConfigurationError('a[0] must not be 0')
+    order = max(a_arr.size, b_arr.size) - 1
+    state = None if zi is None else np.atleast_1d(np.asarray(zi, dtype=float))
+    if state is not None and (state.ndim != 1 or state.size != order):
+        raise ConfigurationError(f'zi must hold {order} value(s) (the filter order), got '
+                                 f'shape {state.shape}')
     b_arr = b_arr / a_arr[0]
     a_arr = np.trim_zeros(a_arr / a_arr[0], 'b')
     xs = np.moveaxis(np.asarray(x, dtype=float), axis, -1)
     v = fir(b_arr, xs)
     n = xs.shape[-1]
+    if state is not None and n > 0:
+        head = min(order, n)
+        v[..., :head] += state[:head]
     if a_arr.size == 1 or n == 0 or v.size == 0:
         return np.moveaxis(v, -1, axis)
     a_arr = a_arr[:n]
