@@ -4,7 +4,8 @@ The sysid node's :class:`~galvo_sysid.monitor.scheduler.WindowScheduler` hands e
 one of its fit processes. Since 2026-11-27 the records go through a block of shared memory
 (:mod:`galvo_sysid.monitor.handover`); before, the whole window was pickled into the process
 pool's pipe (what the scheduler still does where shared memory cannot be had). This script
-times both: a scheduler with one spawned fit process (as the node's) is given ``--windows``
+times both: a scheduler with one spawned fit process (the node's were spawned until
+2026-11-28 and come from a fork server since; the hand-over is the same) is given ``--windows``
 windows of ``--moves`` x 512 samples one after the other, a few ms apart, and the fit
 returns at once the time it started (:func:`time.perf_counter` is the machine's monotonic
 clock, the same in every process). Reported per way: median, p90 and p99 of submit -> fit

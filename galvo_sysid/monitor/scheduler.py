@@ -6,8 +6,10 @@ scheduler is made. What became of each window (:class:`FitOutcome`) is handed to
 or collected for the caller to :meth:`~WindowScheduler.take`, in the order the windows came
 when asked (``ordered``). Both users share it:
 
-- the sysid node (:class:`~galvo_sysid.monitor.tasks.SysidTask`): spawned children (no ROS
-  state inherited) warmed up before the first window, a full queue drops its oldest window
+- the sysid node (:class:`~galvo_sysid.monitor.tasks.SysidTask`): children forked from a
+  fork server (a fresh process without ROS that has imported the numerics once, so the
+  children neither inherit ROS state nor import the numerics each) warmed up before the
+  first window, a full queue drops its oldest window
   (the input must never wait), outcomes to a callback as they come;
 - ``galvo-sysid identify`` (:func:`galvo_sysid.field.offline.identify_bag`): forked children
   (they inherit the imported numerics), a full queue makes the reader wait, outcomes in
@@ -102,25 +104,61 @@ def _timed_ticket(fit: Callable[[Window], IdentificationResult],
     return _timed(fit, take_window(ticket))
 
 
-def _child_init(parent: int) -> None:
+def _child_init(parent: int, served: bool) -> None:
     """Set up a fit process: leave Ctrl-C to the parent, die with it, reuse freed memory.
 
     The parent shuts its children down on Ctrl-C; if it is killed outright (SIGKILL), a
-    watcher thread notices the new parent pid and ends the child, so no orphan is left.
+    watcher thread notices and ends the child, so no orphan is left. A spawned or forked
+    child (``served`` false) sees its parent's pid change (also when it starts after the
+    parent died); a child of the fork server sees the server go (it ends when the parent's
+    end of its pipe closes, but the children hold that pipe too) or the parent die (its
+    pid gone or a zombie: :func:`_dead`).
     """
     import signal
 
     from galvo_sysid import keep_freed_memory
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    keep_freed_memory()  # a spawned child does not inherit the parent's setting
+    keep_freed_memory()  # a new child does not inherit the parent's setting
+    server = os.getppid() if served else parent
+
+    def alive() -> bool:
+        if os.getppid() != server:
+            return False
+        return not (served and _dead(parent))
 
     def watch() -> None:
-        while os.getppid() == parent:
+        while alive():
             time.sleep(0.5)
         os._exit(0)
 
     threading.Thread(target=watch, name='parent-watch', daemon=True).start()
+
+
+def _dead(pid: int) -> bool:
+    """Whether process ``pid`` has ended.
+
+    Gone, or a zombie its parent has not reaped yet (``/proc/PID/stat``; where there is no
+    ``/proc``, only gone).
+    """
+    try:
+        with open(f'/proc/{pid}/stat', 'rb') as f:
+            stat = f.read()
+    except FileNotFoundError:
+        return True
+    except OSError:  # no /proc here
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        except PermissionError:  # there, under another user
+            return False
+        return False
+    return stat[stat.rfind(b')') + 2:][:1] in (b'Z', b'X')  # the state after "(comm)"
+
+
+_PRELOAD = ['galvo_sysid.monitor.scheduler', 'galvo_sysid.ident.identify']
+"""What the fork server imports once for all its children (the fits' numerics)."""
 
 
 def _started() -> bool:
@@ -197,8 +235,10 @@ class WindowScheduler:
             waiting (returned), or ``'wait'`` for room.
         ordered: Hand the outcomes on in the order the windows were submitted (a dropped
             window is skipped); else as the fits finish.
-        start_method: How the children start: ``'spawn'`` (nothing inherited, e.g. no ROS
-            state) or ``'fork'`` (they inherit the imported modules; only without ROS).
+        start_method: How the children start: ``'forkserver'`` (forked from a fresh server
+            process that imported the numerics once: no ROS state inherited, no import per
+            child), ``'spawn'`` (a fresh interpreter each) or ``'fork'`` (they inherit the
+            caller's imported modules; only without ROS).
         warm_up: Run one small fit in each child at start (the first window's fit then pays
             no start-up cost).
 
@@ -209,7 +249,8 @@ class WindowScheduler:
     def __init__(self, fit: Callable[[Window], IdentificationResult],
                  on_done: Callable[[FitOutcome], None] | None = None, *, queue_size: int = 8,
                  processes: int = 0, when_full: Literal['drop', 'wait'] = 'drop',
-                 ordered: bool = False, start_method: Literal['spawn', 'fork'] = 'spawn',
+                 ordered: bool = False,
+                 start_method: Literal['forkserver', 'spawn', 'fork'] = 'forkserver',
                  warm_up: bool = True) -> None:
         if int(queue_size) < 1:
             raise ConfigurationError(f'queue_size must be >= 1, got {queue_size}')
@@ -217,9 +258,9 @@ class WindowScheduler:
             raise ConfigurationError(f'processes must be within [0, 1024], got {processes}')
         if when_full not in ('drop', 'wait'):
             raise ConfigurationError(f"when_full must be 'drop' or 'wait', got {when_full!r}")
-        if start_method not in ('spawn', 'fork'):
-            raise ConfigurationError(f"start_method must be 'spawn' or 'fork', got "
-                                     f'{start_method!r}')
+        if start_method not in ('forkserver', 'spawn', 'fork'):
+            raise ConfigurationError(f"start_method must be 'forkserver', 'spawn' or 'fork', "
+                                     f'got {start_method!r}')
         self._fit = fit
         self._on_done = on_done
         self.queue_size = int(queue_size)
@@ -261,9 +302,13 @@ class WindowScheduler:
             t.start()
 
     def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
+        context = multiprocessing.get_context(self._start_method)
+        if self._start_method == 'forkserver':  # before the server starts (once a process)
+            context.set_forkserver_preload(_PRELOAD)
         return concurrent.futures.ProcessPoolExecutor(
-            max_workers=self.processes, mp_context=multiprocessing.get_context(self._start_method),
-            initializer=_child_init, initargs=(os.getpid(),))
+            max_workers=self.processes, mp_context=context,
+            initializer=_child_init,
+            initargs=(os.getpid(), self._start_method == 'forkserver'))
 
     def __enter__(self) -> WindowScheduler:
         return self

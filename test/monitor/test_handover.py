@@ -170,7 +170,8 @@ def recorded(self, window):
 
 handover.WindowBuffer.put = recorded
 if __name__ == '__main__':
-    scheduler = WindowScheduler(echo_fit, processes=2, start_method='spawn', warm_up=False)
+    scheduler = WindowScheduler(echo_fit, processes=2, start_method=sys.argv[1],
+                                warm_up=False)
     for i in range(4):
         scheduler.submit(Window(index=i, target_angle=0.3, sample_period=1e-5,
                                 current=np.ones((10, 64)), encoder=np.ones((10, 64)),
@@ -182,7 +183,10 @@ if __name__ == '__main__':
 """
 
 
-def test_a_killed_scheduler_leaves_no_block_behind(tmp_path: Path) -> None:
+@pytest.mark.parametrize('start_method', ['spawn', 'forkserver'])
+def test_a_killed_scheduler_leaves_no_block_behind(tmp_path: Path, start_method: str) -> None:
+    """SIGKILLed, the scheduler leaves no shared block and no child: the run returns only
+    once every process holding its output is gone (a child, the fork server)."""
     import subprocess
     import sys
     import time
@@ -191,8 +195,8 @@ def test_a_killed_scheduler_leaves_no_block_behind(tmp_path: Path) -> None:
     script.write_text(KILLED, encoding='utf-8')
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [str(Path(__file__).parent), str(Path(__file__).parents[2])]))
-    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
-                          timeout=60, env=env, check=False)
+    proc = subprocess.run([sys.executable, str(script), start_method], capture_output=True,
+                          text=True, timeout=60, env=env, check=False)
     assert proc.returncode == -9, proc.stderr
     names = proc.stdout.split()
     assert names  # the windows went through blocks

@@ -202,7 +202,7 @@ def test_leaving_on_an_error_drops_the_queued_windows() -> None:
     ({'queue_size': 0}, 'queue_size'),
     ({'processes': -1}, 'processes'),
     ({'when_full': 'block'}, 'when_full'),
-    ({'start_method': 'forkserver'}, 'start_method'),
+    ({'start_method': 'thread'}, 'start_method'),
 ])
 def test_bad_settings(kwargs: dict, match: str) -> None:
     with pytest.raises(ConfigurationError, match=match):
