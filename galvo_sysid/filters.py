@@ -11,8 +11,10 @@ driver node, ``galvo-sysid simulate``), for the two functions the package needs:
 - :func:`bilinear`: the bilinear (Tustin) transform of a continuous transfer function, as
   ``scipy.signal.bilinear``.
 
-Both agree with :mod:`scipy.signal` to rounding; the first-order filters of the simulator's
-noise and of the discrepancy plant's amplifier lag to the bit (``test/test_filters.py``).
+Both agree with :mod:`scipy.signal` to rounding; the first-order filter of the simulator's
+noise to the bit (``test/test_filters.py``). A first-order filter of many short rows is 4x
+slower than :mod:`scipy.signal`'s (LAPACK's band solver steps one element at a time): the
+discrepancy plant, whose analyses take seconds, keeps :mod:`scipy.signal`.
 A top-level module (below ``model``): the simulator and the identification, on one layer,
 both use it.
 """
