@@ -314,8 +314,8 @@ def report_common(sc: Scenario, r: dict[str, Any], bounds: dict[str, Any]
          f'(incomplete at the end: {sum(n % ws for n in good.values())})'),
         ('node RSS start / max / end of flood / settled [MiB]',
          f'{mib(rss[0])} / {mib(max(rss))} / {mib(r["rss_flood_end"])} / {mib(r["rss_end"])} '
-         f'(samples every 0.5 s: {len(rss)}; node + {r["children"]} child processes at the '
-         f'end: {mib(r["tree_end"])})'),
+         f'(samples every 0.5 s: {len(rss)}; node + {r["children"]} processes below it at '
+         f'the end: {mib(r["tree_end"])})'),
         ('node RSS along the run [MiB]',
          ', '.join(f'{t:.0f} s: {mib(k)}' for t, k in sc.rss[::max(1, len(sc.rss) // 10)])),
         ('configured bounds',

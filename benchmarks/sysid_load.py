@@ -70,22 +70,28 @@ MOVE_TIME = 606e-5  # simulated seconds per move (512 recorded + 94 dwell sample
 NS = '/load'
 
 
-def children(pid: int) -> list[int]:
-    """Pids whose parent is ``pid``."""
-    kids = []
+def descendants(pid: int) -> list[int]:
+    """Pids below ``pid``: its children, theirs, and so on.
+
+    The fit processes are children of the node's fork server since 2026-11-28.
+    """
+    parent_of: dict[int, int] = {}
     for stat in Path('/proc').glob('[0-9]*/stat'):
         try:
-            fields = stat.read_text().rsplit(')', 1)[1].split()
-        except (OSError, IndexError):
+            parent_of[int(stat.parent.name)] = int(stat.read_text().rsplit(')', 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
             continue
-        if int(fields[1]) == pid:
-            kids.append(int(stat.parent.name))
-    return kids
+    out: list[int] = []
+    level = [pid]
+    while level:
+        level = [p for p, q in parent_of.items() if q in level]
+        out.extend(level)
+    return out
 
 
 def process_tree_rss(pid: int) -> tuple[int, int]:
-    """Resident memory [KiB] of ``pid`` and of its children together; and the children."""
-    kids = children(pid)
+    """Resident memory [KiB] of ``pid`` and the processes below it, and their number."""
+    kids = descendants(pid)
     total = 0
     for p in [pid, *kids]:
         try:
@@ -98,7 +104,7 @@ def process_tree_rss(pid: int) -> tuple[int, int]:
 
 
 def process_tree_cpu(pid: int) -> tuple[float, float]:
-    """CPU seconds (user + system) used so far by ``pid``, and by its live children together."""
+    """CPU seconds (user + system) used so far by ``pid``, and by the processes below it."""
     tick = os.sysconf('SC_CLK_TCK')
 
     def cpu(p: int) -> float:
@@ -108,7 +114,7 @@ def process_tree_cpu(pid: int) -> tuple[float, float]:
         except (OSError, IndexError, ValueError):  # gone meanwhile
             return 0.0
 
-    return cpu(pid), sum(cpu(p) for p in children(pid))
+    return cpu(pid), sum(cpu(p) for p in descendants(pid))
 
 
 _COUNTERS = re.compile(r'counters: (.*)$', re.MULTILINE)
@@ -359,8 +365,9 @@ def main() -> int:
                    for key in ('latency_ms', 'fit_cpu_ms', 'wait_ms'))),
         ('CPU from the first move to the last result [s]', _cpu_row(r)),
         ('resident memory start -> end [MiB]',
-         f'{r["rss_start"]:.0f} -> {r["rss_end"]:.0f} (node + {r["children"]} child '
-         'processes: fits, resource tracker)'),
+         f'{r["rss_start"]:.0f} -> {r["rss_end"]:.0f} (node + {r["children"]} processes '
+         'below it: fork server, fits, resource tracker; RSS summed, shared pages counted '
+         'in each)'),
         ('resident memory along the run [MiB]',
          ', '.join(f'{t:.0f} s: {kib / 1024:.0f}' for t, kib in r['rss_trace'])),
     ]

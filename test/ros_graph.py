@@ -56,6 +56,25 @@ def children(pid: int) -> list[int]:
     return out
 
 
+def descendants(pid: int) -> list[int]:
+    """Pids below ``pid``: its children, theirs, and so on.
+
+    sysid's fit processes are children of its fork server.
+    """
+    parent_of: dict[int, int] = {}
+    for stat in Path('/proc').glob('[0-9]*/stat'):
+        try:
+            parent_of[int(stat.parent.name)] = int(stat.read_text().rsplit(')', 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            continue
+    out: list[int] = []
+    level = [pid]
+    while level:
+        level = [p for p, q in parent_of.items() if q in level]
+        out.extend(level)
+    return out
+
+
 def alive(pid: int) -> bool:
     """Whether ``pid`` runs (a zombie counts as gone)."""
     try:
@@ -94,8 +113,11 @@ class Proc:
         return self.popen.poll() is None
 
     def note_children(self) -> list[int]:
-        """Remember (and return) the current child processes (e.g. sysid's fit processes)."""
-        found = children(self.pid)
+        """Remember (and return) the processes below this one now.
+
+        E.g. sysid's fork server and fit processes.
+        """
+        found = descendants(self.pid)
         self.known_children.update(found)
         return found
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 import collections
 import concurrent.futures
 import functools
+import importlib
 import math
 import multiprocessing
 import os
@@ -169,21 +170,26 @@ def _started() -> bool:
 def _warm_up() -> bool:
     """Import the numerics and run one small fit in a child before the first window arrives.
 
-    The first fit in a fresh process pays for imports and first-call set-up (~0.5 s);
-    without this the first window's result would come that much later.
+    The first fit in a fresh process pays for imports and first-call set-up (~0.5 s; in a
+    child of the fork server, the pages it first writes); without this the first window's
+    result would come that much later. The fit is of the paper's scanner, noise added, with
+    its own model, and succeeds (True); until 2026-11-28 it was fitted with a model lacking
+    the data's delay and ended in a mismatch before its last steps.
     """
     import numpy as np
 
     from galvo_sysid.ident.identify import identify_window
-    from galvo_sysid.model import REFERENCE_MODEL, TAU, InputDynamics, simulate
+    from galvo_sysid.model import PAPER_MODEL, TAU, simulate
 
+    rng = np.random.default_rng(0)
     k = np.arange(256, dtype=float)
     pulse = np.where(k < 8, 0.0, np.where(k < 58, 1.0, np.where(k < 108, -1.0, 0.0)))
-    u = np.tile(pulse, (4, 1)) + 1e-3 * np.random.default_rng(0).standard_normal((4, 256))
-    y = simulate(REFERENCE_MODEL, InputDynamics(), u, sample_period=TAU)
+    u = np.tile(pulse, (4, 1)) + 1e-3 * rng.standard_normal((4, 256))
+    y = (simulate(PAPER_MODEL.modal, PAPER_MODEL.dynamics, u, sample_period=TAU)
+         + 1e-7 * rng.standard_normal((4, 256)))
     try:
-        identify_window(u, y, sample_period=TAU)
-    except Exception:  # the warm-up only primes caches; its result does not matter
+        identify_window(u, y, sample_period=TAU, model=PAPER_MODEL)
+    except Exception:  # the warm-up only primes caches (test_scheduler checks it succeeds)
         return False
     return True
 
@@ -289,6 +295,10 @@ class WindowScheduler:
         """Windows dropped because the queue was full."""
         self._closed = False
         self._pool: concurrent.futures.ProcessPoolExecutor | None = None
+        # the fits' numerics, and the classes the children's outcomes are unpickled into,
+        # imported now rather than at the first window (in the sysid node under 1,000 moves/s
+        # that import made its first windows 0.8 s late instead of 0.2)
+        importlib.import_module('galvo_sysid.ident.identify')
         if self.processes:  # children first: a forked pool starts them all at its first task
             # the tracker of the windows' shared memory (handover), shared by the children:
             # started before they are (a forked child would otherwise start its own)

@@ -265,7 +265,7 @@ def test_galvo_sysid_launch_runs_the_three_nodes_and_stops_them(graph: Graph,
     SIGINT stops everything (the fit processes too), exit code 0."""
     from diagnostic_msgs.msg import DiagnosticArray
     from galvo_sysid_msgs.msg import ModalParameters, MoveSamples
-    from ros_graph import MOVES_QOS, RESULTS_QOS, alive, children
+    from ros_graph import MOVES_QOS, RESULTS_QOS, alive, descendants
 
     from galvo_sysid.interfaces.topics import NODE_TOPICS, absolute_topic
 
@@ -303,9 +303,8 @@ def test_galvo_sysid_launch_runs_the_three_nodes_and_stops_them(graph: Graph,
         assert pubs - own == {absolute_topic(t, namespace=ns) for t, _ in topics.publishes}
         assert subs - own == {absolute_topic(t, namespace=ns) for t, _ in topics.subscribes}
 
-    family = children(launcher.pid)
-    family += [g for c in family for g in children(c)]  # sysid's fit processes
-    assert len(family) >= 5, family  # three nodes, two fit processes
+    family = descendants(launcher.pid)  # the nodes, sysid's fork server and fit processes
+    assert len(family) >= 6, family  # three nodes, a fork server, two fit processes
     launcher.popen.send_signal(signal.SIGINT)
     assert launcher.popen.wait(timeout=60) == 0, graph.logs()
     assert not [pid for pid in family if alive(pid)]
