@@ -66,27 +66,11 @@ from galvo_sysid.interfaces.messages import fill, fill_header, move_samples_fiel
 from galvo_sysid.interfaces.topics import RESULT_TOPIC, SIGNAL_TOPICS, absolute_topic
 from galvo_sysid.sim.simulator import GalvoSimulator
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
+from ros_graph import descendants  # the test helpers: the processes below a node
+
 MOVE_TIME = 606e-5  # simulated seconds per move (512 recorded + 94 dwell samples at 10 us)
 NS = '/load'
-
-
-def descendants(pid: int) -> list[int]:
-    """Pids below ``pid``: its children, theirs, and so on.
-
-    The fit processes are children of the node's fork server since 2026-11-28.
-    """
-    parent_of: dict[int, int] = {}
-    for stat in Path('/proc').glob('[0-9]*/stat'):
-        try:
-            parent_of[int(stat.parent.name)] = int(stat.read_text().rsplit(')', 1)[1].split()[1])
-        except (OSError, IndexError, ValueError):
-            continue
-    out: list[int] = []
-    level = [pid]
-    while level:
-        level = [p for p, q in parent_of.items() if q in level]
-        out.extend(level)
-    return out
 
 
 def process_tree_rss(pid: int) -> tuple[int, int]:

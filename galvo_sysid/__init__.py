@@ -15,11 +15,17 @@ tools of :mod:`galvo_sysid.field.live`).
 from __future__ import annotations
 
 import ctypes
+import importlib
 import os
+import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Mapping
 
 __all__ = ['BLAS_THREAD_VARIABLES', 'FASTDDS_DEFAULTS', '__version__', 'bounded_dds_memory',
-           'keep_freed_memory', 'limit_blas_threads']
+           'keep_freed_memory', 'lazy_names', 'limit_blas_threads']
 
 __version__ = '0.1.0'
 
@@ -37,6 +43,26 @@ def limit_blas_threads() -> None:
     """
     for name in BLAS_THREAD_VARIABLES:
         os.environ.setdefault(name, '1')
+
+
+def lazy_names(package: str, where: Mapping[str, str]) -> Callable[[str], Any]:
+    """A subpackage's module ``__getattr__`` that loads each public name when first used.
+
+    So that importing one light module of a subpackage (say ``galvo_sysid.ident.methods``)
+    does not import the whole subpackage's API (the fits and :mod:`scipy.optimize`).
+
+    Args:
+        package: The subpackage (its ``__name__``).
+        where: Public name -> the submodule defining it.
+    """
+    def getattr_(name: str) -> Any:
+        module = where.get(name)
+        if module is None:
+            raise AttributeError(f'module {package!r} has no attribute {name!r}')
+        value = getattr(importlib.import_module(f'{package}.{module}'), name)
+        setattr(sys.modules[package], name, value)
+        return value
+    return getattr_
 
 
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3   # glibc's mallopt parameters

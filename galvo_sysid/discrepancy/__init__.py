@@ -14,8 +14,9 @@ numerics); the modules' underscored names are private to the subpackage.
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from galvo_sysid import lazy_names
 
 if TYPE_CHECKING:
     from galvo_sysid.discrepancy.candidates import CandidateFit
@@ -71,11 +72,4 @@ _WHERE = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    """Load a name of :data:`__all__` from its module when first used."""
-    module = _WHERE.get(name)
-    if module is None:
-        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
-    value = getattr(importlib.import_module(f'{__name__}.{module}'), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, _WHERE)
