@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import collections
 import functools
-import importlib
 from collections.abc import Mapping
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
@@ -245,9 +244,8 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
                 not spectra or spectra[0][0].shape[1] == window.current.shape[1]):
             spectra.append((window.current, window.encoder))
 
-    # the children are forked: they inherit the imported numerics (no ROS in this process),
-    # the fits' imported here, once, not in each child
-    importlib.import_module('galvo_sysid.ident.identify')
+    # the children are forked: they inherit the imported numerics (no ROS in this process;
+    # the scheduler imports the fits' before it starts them)
     with WindowScheduler(fit, processes=int(jobs) if int(jobs) > 1 else 0,
                          queue_size=int(jobs), when_full='wait', ordered=True,
                          start_method='fork', warm_up=False) as scheduler:
