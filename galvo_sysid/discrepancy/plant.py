@@ -42,6 +42,7 @@ from scipy.signal import lfilter  # C: 4x galvo_sysid.filters' speed on many row
 
 from galvo_sysid.errors import ConfigurationError, InvalidDataError
 from galvo_sysid.model.dynamics import modal_state_space, split_delay, zoh
+from galvo_sysid.model.terms import current_law
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray
@@ -420,6 +421,7 @@ class PlantSimulator:
         p_t = np.ascontiguousarray(p_lin.T + p_start)
         hold = ph.cogging(p_start, 0.0) if cogging else 0.0
         hold_terms = ph.term_current(p_start, 0.0, 0.0, u_eq) if terms else 0.0
+        term_law = current_law(dict(ph.terms))
         u_t = np.ascontiguousarray(u.T)
         m, n1 = v_lin.shape
         v_last = np.zeros(m)
@@ -434,7 +436,7 @@ class PlantSimulator:
                 v0 = v_t[k] + sv
                 dc = ph.cogging(p_t[k] + sp, v0) - hold if cogging else 0.0
                 if terms:
-                    dc = dc + (ph.term_current(p_t[k] + sp, v0, (v0 - v_last) / t, u_t[k])
+                    dc = dc + (term_law(p_t[k] + sp, v0, (v0 - v_last) / t, u_t[k])
                                - hold_terms)
                     v_last = v0
                 if moving:

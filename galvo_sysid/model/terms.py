@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ['PERIODIC_TERMS', 'TERMS', 'PeriodicTerm', 'Term', 'term_current', 'term_reading',
-           'term_reading_slope']
+__all__ = ['PERIODIC_TERMS', 'TERMS', 'PeriodicTerm', 'Term', 'current_law', 'term_current',
+           'term_reading', 'term_reading_slope']
 
 _Law = Callable[..., Any]
 
@@ -90,25 +90,38 @@ PERIODIC_TERMS: tuple[PeriodicTerm, ...] = (
 
 def _periodic(p: Mapping[str, float], prefix: str,
               x: Any) -> tuple[float, float, Any] | None:
+    """(amplitude, 2 pi / period, the sine's argument at x), or None if the amplitude is 0;
+    x None: the phase in place of the argument."""  # noqa: D205, D209
     amp = p.get(f'{prefix}_amplitude', 0.0)
     if not amp:
         return None
     k = 2 * math.pi / p[f'{prefix}_period']
-    return amp, k, k * x + p.get(f'{prefix}_phase', 0.0)
+    phase = p.get(f'{prefix}_phase', 0.0)
+    return amp, k, phase if x is None else k * x + phase
 
 
 def term_current(p: Mapping[str, float], x: Any, v: Any, a: Any, i: Any) -> Any:
     """The extra current [A] of the terms ``p`` (parameter name: value; absent: zero)."""
-    out: Any = 0.0
-    for t in TERMS:
-        c = p.get(t.parameter, 0.0)
-        if c and t.side == 'current':
-            out = out + c * t.law(x, v, a, i)
-    for f in PERIODIC_TERMS:
-        per = _periodic(p, f.prefix, x) if f.side == 'current' else None
-        if per is not None:
-            out = out + per[0] * np.sin(per[2]) * (i if f.times_current else 1.0)
-    return out
+    return current_law(p)(x, v, a, i)
+
+
+def current_law(p: Mapping[str, float]) -> _Law:
+    """:func:`term_current` of the terms ``p`` as ``law(x, v, a, i)``, the terms looked up
+    once: for the simulations' loops over samples, which call it at every sample."""  # noqa: D205, D209
+    laws = tuple((c, t.law) for t in TERMS
+                 if t.side == 'current' and (c := p.get(t.parameter, 0.0)))
+    waves = tuple((per, f.times_current) for f in PERIODIC_TERMS if f.side == 'current'
+                  and (per := _periodic(p, f.prefix, None)) is not None)
+
+    def law(x: Any, v: Any, a: Any, i: Any) -> Any:
+        out: Any = 0.0
+        for c, term in laws:
+            out = out + c * term(x, v, a, i)
+        for (amp, k, phase), times_current in waves:
+            out = out + amp * np.sin(k * x + phase) * (i if times_current else 1.0)
+        return out
+
+    return law
 
 
 def term_reading(p: Mapping[str, float], x: Any) -> Any:

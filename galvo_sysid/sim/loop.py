@@ -19,7 +19,7 @@ import numpy as np
 
 from galvo_sysid.errors import ConfigurationError
 from galvo_sysid.model.sampling import ContinuousPlant, sample_plant
-from galvo_sysid.model.terms import term_current, term_reading
+from galvo_sysid.model.terms import current_law, term_reading
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -184,6 +184,7 @@ class ClosedLoop:
         enc_a, enc_k, enc_ph = loop.enc
         p_i, v_i = loop.p_index, loop.v_index
         terms, t_current, t_reading = loop.terms, loop.term_current, loop.term_reading
+        term_law = current_law(terms)
         v_last, period = loop.last_velocity, 2.0 * half_t
         sin = math.sin
         zk = z.copy()
@@ -220,8 +221,8 @@ class ClosedLoop:
                                          * sinc)
             if t_current:
                 vk = float(zk[v_i])
-                z_next += loop.gd_sum * float(term_current(terms, float(zk[p_i]), vk,
-                                                           (vk - v_last) / period, uk))
+                z_next += loop.gd_sum * float(term_law(float(zk[p_i]), vk, (vk - v_last) / period,
+                                                       uk))
                 v_last = vk
             if friction > 0:
                 self._friction(zk, z_next)
