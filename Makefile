@@ -16,7 +16,10 @@ setup: $(VENV)/.pkg-stamp $(VENV)/.pyc-stamp
 $(VENV)/.deps-stamp: requirements.txt constraints.txt
 	test -x $(VPY) || $(PYTHON) -m venv $(VENV)
 	touch $(VENV)/COLCON_IGNORE
-	$(VPY) -m pip install --quiet --disable-pip-version-check -r requirements.txt -c constraints.txt
+	$(VPY) -m pip install --quiet --disable-pip-version-check --no-compile -r requirements.txt \
+	    -c constraints.txt
+# The dependencies' bytecode, which pip would write in one process, in two processes here.
+	$(VPY) -m compileall -q -j 2 $(VENV)/lib/python3*/site-packages
 	$(VPY) tools/fix_cmake_paths.py
 	touch $@
 
