@@ -6,7 +6,7 @@ import os
 import sys
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
@@ -70,16 +70,51 @@ def graph(venv_bin: Path, tmp_path: Path, request: pytest.FixtureRequest) -> Ite
         g.close()
 
 
-# The modules whose tests take longest (`pytest --durations`, 2026-11-28: 37-105 s each):
-# handed out first. `make test` runs two xdist workers with ``--dist loadscope``, which hands
-# out whole modules in collection order; in alphabetical order the colcon build and the
-# multi-process node tests came last, and one worker ran them while the other had finished.
-_LONGEST_FIRST = ('test_package_layout.py', 'test_workflow.py', 'test_independent_scanner.py',
-                  'test_commission.py', 'test_fallback.py', 'test_cli_commission.py',
-                  'test_nodes_integration.py', 'test_reliability_faults.py')
+# `make test` runs two pytest-xdist workers with ``--dist loadscope``: whole modules go to a
+# worker. xdist's own order (most tests first) handed out the colcon build and the
+# multi-process node tests, a few slow tests each, last: one worker ran them while the other
+# had finished. The modules go out longest first instead (test/durations.json, written by
+# tools/test_durations.py), and the discrepancy modules that share the cached analyses of
+# test/discrepancy/discrepancy_cases.py go to one worker, which then runs each analysis once.
+_SHARED_ANALYSES = 'test/discrepancy (the cached analyses of discrepancy_cases.py)'
+_SHARING = frozenset(f'test/discrepancy/test_{name}.py'
+                     for name in ('candidates', 'localise', 'report', 'workflow'))
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Run the longest modules first (see :data:`_LONGEST_FIRST`); the rest keep their order."""
-    rank = {name: i for i, name in enumerate(_LONGEST_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+def _scope(nodeid: str) -> str:
+    """The work unit of a test: its module, or the discrepancy modules' shared unit."""
+    module = nodeid.split('::', 1)[0]
+    return _SHARED_ANALYSES if module in _SHARING else module
+
+
+def _seconds() -> dict[str, float]:
+    """Each work unit's seconds in a recent run (0 for a module the file does not list)."""
+    import json
+
+    path = REPO / 'test' / 'durations.json'
+    try:
+        modules: dict[str, float] = json.loads(path.read_text(encoding='utf-8'))
+    except (OSError, ValueError):
+        return {}
+    units: dict[str, float] = {}
+    for module, seconds in modules.items():
+        units[_scope(module)] = units.get(_scope(module), 0.0) + float(seconds)
+    return units
+
+
+def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
+    """The longest work unit first, each worker taking the next when it is nearly done."""
+    from xdist.scheduler import LoadScopeScheduling
+
+    seconds = _seconds()
+
+    class LongestFirst(LoadScopeScheduling):  # type: ignore[misc]
+        def _split_scope(self, nodeid: str) -> str:
+            return _scope(nodeid)
+
+        def _assign_work_unit(self, node: Any) -> None:
+            longest = max(self.workqueue, key=lambda unit: seconds.get(unit, 0.0))
+            self.workqueue.move_to_end(longest, last=False)
+            super()._assign_work_unit(node)
+
+    return LongestFirst(config, log)
