@@ -7,7 +7,6 @@ import json
 from pathlib import Path
 from types import ModuleType, SimpleNamespace
 
-import conftest
 import pytest
 
 REPORT = """<?xml version="1.0" encoding="utf-8"?>
@@ -18,6 +17,17 @@ REPORT = """<?xml version="1.0" encoding="utf-8"?>
 <testcase classname="test.test_lint" name="test_mypy" time="2.0"/>
 </testsuite></testsuites>
 """
+
+
+@pytest.fixture
+def conftest(pytestconfig: pytest.Config) -> ModuleType:
+    """test/conftest.py as pytest loaded it (``import conftest`` may give another directory's
+    conftest module: each is imported under that name)."""
+    path = str(Path(__file__).with_name('conftest.py'))
+    for plugin in pytestconfig.pluginmanager.get_plugins():
+        if isinstance(plugin, ModuleType) and getattr(plugin, '__file__', None) == path:
+            return plugin
+    raise AssertionError(f'{path} is not loaded')
 
 
 def _tool(repo: Path) -> ModuleType:
@@ -89,7 +99,17 @@ class _Node:
         self.shutting_down = True
 
 
-def test_the_shared_analyses_are_one_unit() -> None:
+def test_the_shared_unit_holds_every_module_that_uses_the_cached_analyses(
+        conftest: ModuleType) -> None:
+    """A new module calling ``discrepancy_cases.analysed`` belongs in ``_SHARING``: on the
+    other worker it would run its analyses again."""
+    folder = conftest.REPO / 'test' / 'discrepancy'
+    users = {f'test/discrepancy/{p.name}' for p in folder.glob('test_*.py')
+             if 'analysed(' in p.read_text(encoding='utf-8')}
+    assert users == set(conftest._SHARING)
+
+
+def test_the_shared_analyses_are_one_unit(conftest: ModuleType) -> None:
     for module in conftest._SHARING:
         assert (conftest.REPO / module).is_file()
         assert conftest._scope(f'{module}::test_x[a]') == conftest._SHARED_ANALYSES
@@ -101,7 +121,7 @@ def test_the_shared_analyses_are_one_unit() -> None:
     assert not set(seconds) & conftest._SHARING
 
 
-def test_the_scheduler_hands_out_the_longest_unit_first() -> None:
+def test_the_scheduler_hands_out_the_longest_unit_first(conftest: ModuleType) -> None:
     """Two workers, four units: each worker's first unit is one of the two longest (by
     durations.json, not xdist's own order, most tests first), the shared discrepancy modules
     go to one worker as one unit, and a module the file does not list comes last."""
