@@ -88,16 +88,19 @@ PERIODIC_TERMS: tuple[PeriodicTerm, ...] = (
 """The periodic families (a sine and a cosine each in the fallback's fit)."""
 
 
-def _periodic(p: Mapping[str, float], prefix: str,
-              x: Any) -> tuple[float, float, Any] | None:
-    """(amplitude, 2 pi / period, the sine's argument at x), or None if the amplitude is 0;
-    x None: the phase in place of the argument."""  # noqa: D205, D209
+def _wave(p: Mapping[str, float], prefix: str) -> tuple[float, float, float] | None:
+    """(amplitude, 2 pi / period, phase) of a periodic family, or None if its amplitude is 0."""
     amp = p.get(f'{prefix}_amplitude', 0.0)
     if not amp:
         return None
-    k = 2 * math.pi / p[f'{prefix}_period']
-    phase = p.get(f'{prefix}_phase', 0.0)
-    return amp, k, phase if x is None else k * x + phase
+    return amp, 2 * math.pi / p[f'{prefix}_period'], p.get(f'{prefix}_phase', 0.0)
+
+
+def _periodic(p: Mapping[str, float], prefix: str,
+              x: Any) -> tuple[float, float, Any] | None:
+    """(amplitude, 2 pi / period, the sine's argument at x), or None if the amplitude is 0."""
+    wave = _wave(p, prefix)
+    return None if wave is None else (wave[0], wave[1], wave[1] * x + wave[2])
 
 
 def term_current(p: Mapping[str, float], x: Any, v: Any, a: Any, i: Any) -> Any:
@@ -110,8 +113,8 @@ def current_law(p: Mapping[str, float]) -> _Law:
     once: for the simulations' loops over samples, which call it at every sample."""  # noqa: D205, D209
     laws = tuple((c, t.law) for t in TERMS
                  if t.side == 'current' and (c := p.get(t.parameter, 0.0)))
-    waves = tuple((per, f.times_current) for f in PERIODIC_TERMS if f.side == 'current'
-                  and (per := _periodic(p, f.prefix, None)) is not None)
+    waves = tuple((wave, f.times_current) for f in PERIODIC_TERMS if f.side == 'current'
+                  and (wave := _wave(p, f.prefix)) is not None)
 
     def law(x: Any, v: Any, a: Any, i: Any) -> Any:
         out: Any = 0.0
