@@ -18,8 +18,8 @@ $(VENV)/.deps-stamp: requirements.txt constraints.txt
 	touch $(VENV)/COLCON_IGNORE
 	$(VPY) -m pip install --quiet --disable-pip-version-check --no-compile -r requirements.txt \
 	    -c constraints.txt
-# The dependencies' bytecode, which pip would write in one process, in two processes here.
-	$(VPY) -m compileall -q -j 2 $(VENV)/lib/python3*/site-packages
+# The dependencies' bytecode, which pip writes in one process, in one per core (-j 0).
+	$(VPY) -m compileall -q -j 0 $(VENV)/lib/python3*/site-packages
 	$(VPY) tools/fix_cmake_paths.py
 	touch $@
 
