@@ -103,9 +103,12 @@ def _seconds() -> dict[str, float]:
 
 
 def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
-    """The longest work unit first, each worker taking the next when it is nearly done."""
+    """With ``--dist loadscope``: the longest work unit first, each worker taking the next
+    when it is nearly done (another ``--dist`` keeps xdist's own scheduler)."""
     from xdist.scheduler import LoadScopeScheduling
 
+    if config.getvalue('dist') != 'loadscope':
+        return None
     seconds = _seconds()
 
     class LongestFirst(LoadScopeScheduling):  # type: ignore[misc]

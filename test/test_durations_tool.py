@@ -6,6 +6,7 @@ import importlib.util
 import json
 from pathlib import Path
 from types import ModuleType, SimpleNamespace
+from typing import Any
 
 import pytest
 
@@ -78,9 +79,12 @@ class _Config:
 
     option = SimpleNamespace(loadscopereorder=True)
 
-    def getvalue(self, name: str) -> list[str]:
-        assert name == 'tx'
-        return ['2*popen']
+    def __init__(self, dist: str = 'loadscope') -> None:
+        self.dist = dist
+
+    def getvalue(self, name: str) -> Any:
+        assert name in ('tx', 'dist')
+        return ['2*popen'] if name == 'tx' else self.dist
 
 
 class _Node:
@@ -130,6 +134,7 @@ def test_the_scheduler_hands_out_the_longest_unit_first(conftest: ModuleType) ->
                   'test/cli/test_cli.py::test_a',                               # about 100 s
                   'test/discrepancy/test_localise.py::test_where_the_gap_is',
                   'test/discrepancy/test_candidates.py::test_x[1]']  # with localise: ~120 s
+    assert conftest.pytest_xdist_make_scheduler(_Config('load'), None) is None
     sched = conftest.pytest_xdist_make_scheduler(_Config(), None)
     nodes = [_Node('gw0'), _Node('gw1')]
     for node in nodes:
