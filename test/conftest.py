@@ -98,7 +98,8 @@ def _seconds() -> dict[str, float]:
         return {}
     units: dict[str, float] = {}
     for module, seconds in modules.items():
-        units[_scope(module)] = units.get(_scope(module), 0.0) + float(seconds)
+        unit = _scope(module)
+        units[unit] = units.get(unit, 0.0) + float(seconds)
     return units
 
 

@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         seconds = module_seconds(args.junit)
-    except (OSError, ET.ParseError) as exc:
+    except (OSError, ET.ParseError, ValueError) as exc:  # ValueError: a time not a number
         print(f'error: cannot read {args.junit}: {exc}', file=sys.stderr)
         return 1
     if not seconds:
