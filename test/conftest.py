@@ -103,6 +103,7 @@ def _seconds() -> dict[str, float]:
     return units
 
 
+@pytest.hookimpl(optionalhook=True)  # pytest -p no:xdist has no such hook
 def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
     """With ``--dist loadscope``: the longest work unit first, each worker taking the next
     when it is nearly done (another ``--dist`` keeps xdist's own scheduler)."""
