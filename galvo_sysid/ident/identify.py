@@ -43,7 +43,7 @@ from galvo_sysid.errors import (
     ModelMismatchError,
 )
 from galvo_sysid.ident.methods import METHODS
-from galvo_sysid.ident.paper import paper_pipeline
+from galvo_sysid.ident.paper import group_deleted_models, paper_pipeline
 from galvo_sysid.ident.pool import pool_results
 from galvo_sysid.ident.preprocess import (
     MIN_ANGLE_SPAN,
@@ -89,27 +89,19 @@ def _paper_window(cur: NDArray[np.float64], enc: NDArray[np.float64], *, sample_
 
 def _jackknife_std(cur: NDArray[np.float64], enc: NDArray[np.float64], *, sample_period: float,
                    method: str, options: dict[str, Any], groups: int) -> dict[str, float]:
-    """Delete-a-group jackknife std of the paper pipeline's parameters."""
-    m = cur.shape[0]
-    g = min(groups, m)
+    """Delete-a-group jackknife std of the paper pipeline's parameters
+    (:func:`~galvo_sysid.ident.paper.group_deleted_models`: move i in group i mod groups)."""  # noqa: D205, D209
+    g = min(groups, cur.shape[0])
     if g < 3:
         return {}
-    labels = np.arange(m) % g
-    estimates = []
-    for j in range(g):
-        keep = labels != j
-        try:
-            model = paper_pipeline(cur[keep], enc[keep], sample_period=sample_period,
-                                   method=method, **options).model
-        except GalvoSysidError:
-            continue
-        estimates.append(list(model.parameters().values()))
-    if len(estimates) < 3:
+    models = [m for m in group_deleted_models(cur, enc, groups=g, sample_period=sample_period,
+                                              method=method, **options) if m is not None]
+    if len(models) < 3:
         return {}
-    est = np.array(estimates)
+    names = list(models[0].parameters())
+    est = np.array([list(m.parameters().values()) for m in models])
     k = est.shape[0]
     var = (k - 1) / k * np.sum((est - est.mean(axis=0)) ** 2, axis=0)
-    names = list(model.parameters())
     return {n: float(math.sqrt(v)) for n, v in zip(names, var, strict=True)}
 
 

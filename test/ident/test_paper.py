@@ -22,6 +22,7 @@ from galvo_sysid.ident.delay import lag_delay_filter
 from galvo_sysid.ident.paper import (
     PAPER_DELAY,
     format_error_table,
+    group_deleted_models,
     paper_pipeline,
     relative_error_table,
 )
@@ -196,3 +197,32 @@ def test_error_tables(noisy_1psi):
     assert lines[0].split() == ['parameter', 'A', 'paper', 'A']
     assert lines[4].split()[0] == 'k3'
     assert float(lines[4].split()[2]) == pytest.approx(61.93)
+
+
+@pytest.mark.parametrize(('method', 'delay'), [('A', PAPER_DELAY), ('A', None), ('B', PAPER_DELAY)])
+def test_group_deleted_models_are_the_pipeline_without_each_group(noisy_1psi, method, delay):
+    """Each model is paper_pipeline's on the moves outside its group (move i in group i % 4;
+    13 moves, so the groups differ in size); method A from the groups' sums."""
+    cur, enc = (a[:13] for a in noisy_1psi)
+    opts = {'sample_period': T, 'method': method, 'delay': delay}
+    got = group_deleted_models(cur, enc, groups=4, **opts)
+    labels = np.arange(13) % 4
+    assert len(got) == 4
+    for j, model in enumerate(got):
+        keep = labels != j
+        want = paper_pipeline(cur[keep], enc[keep], **opts).model
+        assert model is not None
+        np.testing.assert_allclose(list(model.parameters().values()),
+                                   list(want.parameters().values()), rtol=1e-8)
+
+
+def test_a_group_deleted_window_without_excitation_has_no_model(noisy_1psi):
+    """Only group 0's moves carry current: the window without them is refused (None), as the
+    pipeline refuses a window whose current is zero; a bad number of groups is a
+    configuration error."""
+    cur, enc = (a[:8].copy() for a in noisy_1psi)
+    cur[np.arange(8) % 4 != 0] = 0.0
+    assert group_deleted_models(cur, enc, groups=4, sample_period=T)[0] is None
+    for groups in (1, 9):
+        with pytest.raises(ConfigurationError, match='groups'):
+            group_deleted_models(cur, enc, groups=groups, sample_period=T)
