@@ -149,3 +149,18 @@ def test_the_scheduler_hands_out_the_longest_unit_first(conftest: ModuleType) ->
     # the two others follow as the workers run low, the longer first
     rest = [i for node in nodes for batch in node.sent[1:] for i in batch]
     assert rest == [4, 5, 6, 0, 1, 2, 3]
+
+
+def test_the_suite_collects_without_xdist() -> None:
+    """``pytest -p no:xdist`` (one process, e.g. to debug a test) loads test/conftest.py:
+    its xdist hook is optional (an unknown hook stopped the run with an internal error)."""
+    import subprocess
+    import sys
+
+    here = Path(__file__)
+    proc = subprocess.run(
+        [sys.executable, '-m', 'pytest', '-p', 'no:xdist', '-p', 'no:cacheprovider',
+         '--collect-only', '-q', str(here)],
+        cwd=here.parents[1], capture_output=True, text=True, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert 'test_the_suite_collects_without_xdist' in proc.stdout
