@@ -51,7 +51,7 @@ from typing import TYPE_CHECKING, Any
 
 from galvo_sysid.errors import ConfigurationError, GalvoSysidError, one_line
 from galvo_sysid.field.bags import BagReader
-from galvo_sysid.field.jobs import job_limit
+from galvo_sysid.field.jobs import fork_map, job_limit
 from galvo_sysid.field.pooling import JOINT_WINDOWS, POOLINGS, _keep, _pooled
 from galvo_sysid.field.results import (
     BagIdentification,
@@ -121,7 +121,8 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
             :class:`~galvo_sysid.monitor.scheduler.WindowScheduler`, the sysid node's. The
             results do not depend on it: each window's fit is the same function call, and
             the outcomes come back in window order (the drift monitor judges the windows in
-            order, the lists keep their order).
+            order, the lists keep their order). The joint fit's large scans are then shared
+            between as many processes (:func:`~galvo_sysid.field.jobs.fork_map`: the same fit).
         pooling: ``'joint'`` (default for ``'refined'``) or ``'inverse-variance'`` (default,
             and the only choice, for the paper methods); see the module docs.
         joint_windows: Windows held for the joint fit at most (memory): beyond, the oldest
@@ -301,7 +302,11 @@ def identify_bag(bag: str | os.PathLike[str], *, method: str = _SYSID['method'],
         for outcome in scheduler.take():
             handle(outcome)
     rejected = _insert(rejected, late)
-    pooled, used, note, n_pooled = _pooled(windows, kept, pooling=pooling, model=plant)
+    # the window fits' processes are gone: the joint fit's large scans go to as many
+    # (forked now, with the data of the joint fit in place)
+    pooled, used, note, n_pooled = _pooled(
+        windows, kept, pooling=pooling, model=plant,
+        map_windows=functools.partial(fork_map, processes=jobs) if jobs > 1 else None)
     why = mismatched[0].reason if mismatched else pairer.period_mismatch
     return BagIdentification(info=info, method=method, window_size=window_size,
                              windows=tuple(windows), pooled=pooled, rejected=tuple(rejected),

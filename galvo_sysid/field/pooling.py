@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from numpy.typing import NDArray
 
     from galvo_sysid.field.results import WindowResult
+    from galvo_sysid.ident.refine.joint import MapWindows
     from galvo_sysid.ident.refine.whitener import NoiseModel
     from galvo_sysid.ident.result import IdentificationResult
     from galvo_sysid.model import PlantModel
@@ -72,8 +73,12 @@ def _keep(kept: list[Window], window: Window, *, limit: int,
 
 
 def _pooled(windows: list[WindowResult], kept: list[Window], *, pooling: str,
-            model: PlantModel) -> tuple[IdentificationResult | None, str, str | None, int]:
+            model: PlantModel, map_windows: MapWindows | None = None,
+            ) -> tuple[IdentificationResult | None, str, str | None, int]:
     """(pooled estimate, pooling used, note, windows pooled) of the identified windows.
+
+    ``map_windows`` shares the joint fit's large scans out
+    (:attr:`~galvo_sysid.ident.refine.joint.JointProblem.map_windows`).
 
     A window whose fit is far below the others' (more than 10 points and 5 robust standard
     deviations under their median) fits its data much worse than the same model fits the
@@ -108,7 +113,8 @@ def _pooled(windows: list[WindowResult], kept: list[Window], *, pooling: str,
         joint = identify_joint(joint_records(kept), sample_period=periods.pop(),
                                initial=combined, target_angle=combined.target_angle,
                                model=model, screen_limit=0.0,
-                               noise_models=_noise_models(kept, by_index), **JOINT_START)
+                               noise_models=_noise_models(kept, by_index),
+                               map_windows=map_windows, **JOINT_START)
     except GalvoSysidError as err:
         return (combined, 'inverse-variance',
                 _notes(f'joint fit failed: {one_line(err)}', left_out), len(results))

@@ -65,6 +65,7 @@ if TYPE_CHECKING:
     from numpy.typing import ArrayLike, NDArray
 
     from galvo_sysid.ident.refine import RefinedFit
+    from galvo_sysid.ident.refine.joint import MapWindows
     from galvo_sysid.ident.refine.whitener import NoiseModel
 
 __all__ = ['check_model_period', 'identify_joint', 'identify_window']
@@ -314,6 +315,7 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
                    initial: IdentificationResult | ModalModel | None = None,
                    target_angle: float | None = None, model: PlantModel | None = None,
                    n_modes: int | None = None, noise_models: Sequence[NoiseModel | None] = (),
+                   map_windows: MapWindows | None = None,
                    **options: Any) -> IdentificationResult:
     """Identify one modal model from several windows of the same plant (joint refined fit).
 
@@ -334,6 +336,8 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
             (:attr:`IdentificationResult.noise_model`), reused instead of estimated anew (see
             :func:`~galvo_sysid.ident.refine.refine_joint`); only for windows of exactly the
             moves that fit had (e.g. screened already: ``screen_limit=0``).
+        map_windows: How the windows' large scans are shared out (e.g.
+            :func:`galvo_sysid.field.jobs.fork_map`); None: in turn. The same fit either way.
         **options: ``bands``, ``reference``, ``min_angle_span`` and the refined options of
             :func:`identify_window` (``scan_points``, ``whiten_order``, ...), and
             ``keep_initial_damping`` (start from ``initial`` as it is; see
@@ -399,7 +403,7 @@ def identify_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_per
     dynamics, tuning = _refine_setup(plant, opts, base=RefineOptions(adequacy_limit=0.0))
     fit = refine_joint(records, sample_period=t, initial=start, bands=bands, dynamics=dynamics,
                        estimate_lag=bool(opts.get('estimate_lag', True)), options=tuning,
-                       noise_models=noise_models)
+                       noise_models=noise_models, map_windows=map_windows)
     if target_angle is None:
         est = np.array([_estimated_angle(enc) for _, enc in records])
         same = np.ptp(est) <= 0.01 * float(np.median(np.abs(est)))

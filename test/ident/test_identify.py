@@ -8,6 +8,7 @@ import math
 import re
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -373,3 +374,26 @@ def test_a_model_of_the_rigid_body_alone_does_not_pass_a_scanner_with_resonances
                                                   natural_frequencies=(), damping_ratios=()))
     with pytest.raises(ModelMismatchError, match=r'the residual between .* times the noise'):
         identify_window(cur, enc, sample_period=TAU, model=rigid, target_angle=PSI)
+
+
+def test_a_joint_fit_with_its_scans_shared_out_is_the_same_fit(
+        windows_1psi: list, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``map_windows`` (identify_bag gives it fork_map): every scan goes through it here and
+    the fit is the same, bit for bit (the sums are made in window order either way)."""
+    import galvo_sysid.ident.refine.joint as joint_module
+    from galvo_sysid.field.jobs import fork_map
+
+    monkeypatch.setattr(joint_module, 'MAP_SCAN_SIZE', 1)
+    windows = windows_1psi[:3]
+    sizes: list[int] = []
+
+    def mapper(fn: Any, items: Any) -> Any:
+        sizes.append(len(items))
+        return fork_map(fn, items)
+
+    plain = identify_joint(windows, sample_period=TAU)
+    shared = identify_joint(windows, sample_period=TAU, map_windows=mapper)
+    assert sizes
+    assert set(sizes) == {3}
+    assert shared.to_dict() == plain.to_dict()
+    assert shared.std_by_name() == plain.std_by_name()

@@ -76,6 +76,8 @@ if TYPE_CHECKING:
 
     from numpy.typing import ArrayLike, NDArray
 
+    from galvo_sysid.ident.refine.joint import MapWindows
+
 __all__ = ['refine_fit', 'refine_joint']
 
 _STAGE1_TOL = 1e-2
@@ -145,7 +147,8 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
                  estimate_lag: bool = True, bands: Sequence[tuple[float, float]] | None = None,
                  noise_filters: Sequence[Whitener | None] | None = None,
                  noise_models: Sequence[NoiseModel | None] = (),
-                 options: RefineOptions = _JOINT_OPTIONS) -> RefinedFit:
+                 options: RefineOptions = _JOINT_OPTIONS,
+                 map_windows: MapWindows | None = None) -> RefinedFit:
     """Fit one modal model to several windows of the same plant at once (the pooled estimate).
 
     Like :func:`refine_fit`, on every window's average, with omega_i, zeta_i, the lag, k0 and
@@ -169,6 +172,10 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
             start (see :meth:`~galvo_sysid.ident.refine.joint.JointProblem.prewhiten`; a model
             of other moves or rows is not used).
         options: Tuning; by default no adequacy check (``adequacy_limit=0``).
+        map_windows: How the windows' large scans are shared out (e.g.
+            :func:`galvo_sysid.field.jobs.fork_map`; see
+            :attr:`~galvo_sysid.ident.refine.joint.JointProblem.map_windows`); None: in turn.
+            The fit is the same either way.
 
     Returns:
         The joint fit (``initial_conditions`` empty, ``offset`` nan: they are per window).
@@ -185,7 +192,8 @@ def refine_joint(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_perio
         raise InvalidDataError('no windows to fit')
     return _fit(windows, sample_period=sample_period, initial=initial, dynamics=dynamics,
                 estimate_lag=estimate_lag, bands=bands, extra_starts=(), options=options,
-                noise_filters=noise_filters, min_moves=3, noise_models=noise_models)
+                noise_filters=noise_filters, min_moves=3, noise_models=noise_models,
+                map_windows=map_windows)
 
 
 def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float,
@@ -193,7 +201,7 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
          bands: Sequence[tuple[float, float]] | None, extra_starts: Sequence[ModalModel],
          options: RefineOptions, noise_filters: Sequence[Whitener | None] | None,
          min_moves: int, noise_models: Sequence[NoiseModel | None] = (),
-         check_noise: bool = False) -> RefinedFit:
+         check_noise: bool = False, map_windows: MapWindows | None = None) -> RefinedFit:
     """The refined fit of one or several windows (see the module docs)."""
     t = check_sample_period(sample_period)
     opt = options
@@ -221,6 +229,7 @@ def _fit(windows: Sequence[tuple[ArrayLike, ArrayLike]], *, sample_period: float
         noise = np.full(len(problems), scale)
     joint = JointProblem(problems, 1.0 / noise,
                          fixed_lag=None if estimate_lag else lag_time_constant)
+    joint.map_windows = map_windows
     lower, upper = bounds(band_list, estimate_lag, opt.lag_bounds)
     x_init = _start_vector(joint, initial, lower, upper, damping_start=opt.damping_start,
                            lag=lag_time_constant, lag_bounds=opt.lag_bounds)

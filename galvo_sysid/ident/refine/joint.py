@@ -33,7 +33,7 @@ from galvo_sysid.ident.refine.whitener import (
 )
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Sequence
     from typing import TypeAlias
 
     from numpy.typing import NDArray
@@ -41,8 +41,16 @@ if TYPE_CHECKING:
     from galvo_sysid.ident.refine.window import WindowProblem
 
     Floats: TypeAlias = Sequence[float] | NDArray[np.float64]
+    Scan: TypeAlias = tuple[NDArray[np.float64], NDArray[np.float64]]
+    MapWindows: TypeAlias = Callable[[Callable[[WindowProblem], Scan], Sequence[WindowProblem]],
+                                     list[Scan]]
 
-__all__ = ['REUSE_LEVEL', 'JointProblem', 'covariance']
+__all__ = ['MAP_SCAN_SIZE', 'REUSE_LEVEL', 'JointProblem', 'covariance']
+
+MAP_SCAN_SIZE = 200
+"""The fewest window x candidate pairs of a scan given to :attr:`JointProblem.map_windows`
+(a smaller one costs less than sharing it out: a fork costs about as much as a few windows'
+scan of a few candidates)."""
 
 REUSE_LEVEL = 1.1
 """A noise model of other moves (:meth:`JointProblem.prewhiten` with ``check``) is reused
@@ -58,6 +66,12 @@ class JointProblem:
         problems: The windows.
         weights: One weight per window (its rows are multiplied by it).
         fixed_lag: The amplifier lag [s] if it is not estimated (None: ``x`` holds it).
+
+    Attributes:
+        map_windows: How the windows' scans (:meth:`scan`, :meth:`scan_residues`) of at
+            least :data:`MAP_SCAN_SIZE` window x candidate pairs are shared out, as ``map``
+            but returning a list (e.g. :func:`galvo_sysid.field.jobs.fork_map`); None: in
+            turn, here. The sums are made here in window order either way: the same numbers.
     """
 
     def __init__(self, problems: Sequence[WindowProblem], weights: Floats, *,
@@ -70,6 +84,8 @@ class JointProblem:
         self.whiten_order = DEFAULT_WHITEN_ORDER
         self.stationary = False  # set by prewhiten (see there)
         self.noise_models: tuple[NoiseModel | None, ...] = ()  # set by prewhiten
+        # how the windows' scans may be shared out (e.g. field.jobs.fork_map); None: in turn
+        self.map_windows: MapWindows | None = None
         self.set_weights(weights)
 
     def prewhiten(self, x: NDArray[np.float64], order: int,
@@ -196,11 +212,18 @@ class JointProblem:
         k_sum = np.zeros((1 + self.n_modes, w_c.size))
         total = 0.0
         shared = {}
-        for prob, wt in zip(self.problems, self.weights, strict=True):
+        for prob in self.problems:
             if prob.n not in shared:
                 shared[prob.n] = prob.candidate_transforms(lag, w_c, z_c)
-            g, k = prob.scan_residues(i, omega, zeta, lag, w_c, z_c, shared=shared[prob.n],
+
+        def one(prob: WindowProblem) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+            return prob.scan_residues(i, omega, zeta, lag, w_c, z_c, shared=shared[prob.n],
                                       others=others)
+
+        big = self.map_windows is not None and len(self.problems) * w_c.size >= MAP_SCAN_SIZE
+        parts = self.map_windows(one, self.problems) if big and self.map_windows is not None \
+            else [one(prob) for prob in self.problems]
+        for (g, k), wt in zip(parts, self.weights, strict=True):
             gain += wt * wt * g
             k_sum += wt * wt * k
             total += wt * wt
