@@ -18,7 +18,7 @@ it falls back to the white-noise formula ``sigma^2 A^-1``.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 from scipy.linalg import qr, solve_triangular
@@ -34,18 +34,22 @@ from galvo_sysid.ident.refine.whitener import (
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
-    from typing import TypeAlias
 
     from numpy.typing import NDArray
 
     from galvo_sysid.ident.refine.window import WindowProblem
 
     Floats: TypeAlias = Sequence[float] | NDArray[np.float64]
-    Scan: TypeAlias = tuple[NDArray[np.float64], NDArray[np.float64]]
-    MapWindows: TypeAlias = Callable[[Callable[[WindowProblem], Scan], Sequence[WindowProblem]],
-                                     list[Scan]]
 
-__all__ = ['MAP_SCAN_SIZE', 'REUSE_LEVEL', 'JointProblem', 'covariance']
+__all__ = ['MAP_SCAN_SIZE', 'REUSE_LEVEL', 'JointProblem', 'MapWindows', 'Scan', 'covariance']
+
+Scan: TypeAlias = 'tuple[NDArray[np.float64], NDArray[np.float64]]'
+"""One window's scan: the cost reductions at the candidates and their residues."""
+
+MapWindows: TypeAlias = (
+    'Callable[[Callable[[WindowProblem], Scan], Sequence[WindowProblem]], list[Scan]]')
+"""How the windows' scans are shared out (:attr:`JointProblem.map_windows`): as ``map``, but
+returning a list."""
 
 MAP_SCAN_SIZE = 200
 """The fewest window x candidate pairs of a scan given to :attr:`JointProblem.map_windows`
