@@ -195,9 +195,8 @@ def group_deleted_models(current: ArrayLike, encoder: ArrayLike, *, groups: int,
     out: list[ModalModel | None] = []
     fixed = None  # a given delay's filter is every group's
     if delay is not None:
-        d = _delay_of(cur, enc, sample_period=sample_period, delay=delay, na=na, nb=nb,
-                      reference=reference)
-        fixed = _input_filter(d, sample_period=sample_period, given=input_filter)
+        fixed = _input_filter(_given_delay(delay), sample_period=sample_period,
+                              given=input_filter)
     for j in range(groups):
         c, e = cur[labels != j], enc[labels != j]
         u_avg, y_avg = average_records(c, e)
@@ -231,6 +230,11 @@ def _delay_of(u_avg: NDArray[np.float64], y_avg: NDArray[np.float64], *, sample_
     if delay is None:
         return estimate_delay(u_avg, y_avg, sample_period=sample_period, na=na, nb=nb,
                               reference=reference).delay
+    return _given_delay(delay)
+
+
+def _given_delay(delay: float) -> float:
+    """``delay`` [s], checked."""
     if isinstance(delay, int | float) and np.isfinite(delay) and delay >= 0:
         return float(delay)
     raise ConfigurationError(f'delay must be a finite number >= 0 or None, got {delay!r}')
