@@ -33,6 +33,7 @@ range, aliases and files over 1 MB are refused with one line naming the file and
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -127,6 +128,10 @@ def model_from_dict(data: Any, *, source: str = 'model') -> PlantModel:
         ConfigurationError: Wrong layout, unknown or missing keys, bad values (the message
             names ``source`` and the key).
     """
+    if not isinstance(data, Mapping):  # e.g. another text file given as the model
+        got = 'nothing' if data is None else f'a {type(data).__name__}'
+        raise ConfigurationError(f'{source}: not a plant model file (a YAML mapping with '
+                                 f'sample_period, mechanics, ... expected; it holds {got})')
     top = Section(data, source)
     fmt = top.data.get('format', FORMAT)
     if fmt != FORMAT:

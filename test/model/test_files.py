@@ -142,6 +142,14 @@ def test_bad_models_are_refused_with_a_clear_message(mutate, message):
     assert '\n' not in str(info.value)
 
 
+@pytest.mark.parametrize(('data', 'holds'), [('root:x:0:0:root', 'a str'),
+                                               ([1, 2], 'a list'), (None, 'nothing')])
+def test_a_file_that_is_no_model_says_so(data, holds):
+    """Another text file given as the model (e.g. /etc/passwd parses as a YAML string)."""
+    with pytest.raises(ConfigurationError, match=f'not a plant model file .*it holds {holds}'):
+        model_from_dict(data, source='m.yaml')
+
+
 def test_a_typo_or_a_text_in_a_model_file_is_refused(tmp_path):
     """Defect 14 (repro 10): a misspelt key inside ``input_dynamics`` (lag_typo.yaml) was
     ignored, the model loaded without the lag it asked for; a residue written as text was
