@@ -70,7 +70,9 @@ def test_never_a_candidate():
 
 def test_the_commands_load_a_proposal_model(tmp_path, capsys):
     """`simulate --model` and `discrepancy --model` take a model file with the terms (as
-    ``proposal.yaml`` is): moves simulated with it are consistent with it."""
+    ``proposal.yaml`` is): moves simulated with it are consistent with it (10 moves per angle
+    suffice: the same moves simulated without the terms are 'unexplained' against it, checked
+    by hand 2026-11-28)."""
     import json
 
     from galvo_sysid.cli.main import main
@@ -80,7 +82,7 @@ def test_the_commands_load_a_proposal_model(tmp_path, capsys):
                       tmp_path / 'proposal.yaml')
     bag = tmp_path / 'bag'
     assert main(['simulate', '--out', str(bag), '--model', str(path), '--angles', '0.1psi',
-                 '1psi', '10psi', '--moves-per-angle', '20', '--seed', '1']) == 0
+                 '1psi', '10psi', '--moves-per-angle', '10', '--seed', '1']) == 0
     capsys.readouterr()
     assert main(['discrepancy', str(bag), '--model', str(path), '--json']) == 0
     out = json.loads(capsys.readouterr().out)

@@ -391,8 +391,9 @@ def test_a_joint_fit_with_its_scans_shared_out_is_the_same_fit(
         sizes.append(len(items))
         return fork_map(fn, items)
 
-    plain = identify_joint(windows, sample_period=TAU)
-    shared = identify_joint(windows, sample_period=TAU, map_windows=mapper)
+    plain = identify_joint(windows, sample_period=TAU, initial=PAPER_MODEL.modal)
+    shared = identify_joint(windows, sample_period=TAU, initial=PAPER_MODEL.modal,
+                            map_windows=mapper)
     assert sizes
     assert set(sizes) == {3}
     assert shared.to_dict() == plain.to_dict()
